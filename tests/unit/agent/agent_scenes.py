@@ -1,0 +1,70 @@
+"""Hand-built scenes for the agent's unit tests: an analytic ray caster for box rooms."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from agent.projection import camera_rays_base
+from agent.types import CAMERA_HEIGHT_M, Intrinsics, Observation, Pose2D
+
+SMALL_INTRINSICS = Intrinsics.from_hfov(90, 160, 42.0)  # the sim camera's shape at 1/4 size
+
+
+def render_depth(
+    boxes: list[tuple[float, float, float, float, float]],
+    pose: Pose2D,
+    intrinsics: Intrinsics = SMALL_INTRINSICS,
+    camera_height_m: float = CAMERA_HEIGHT_M,
+    tilt_rad: float = 0.0,
+    far_m: float = 50.0,
+) -> np.ndarray:
+    """Depth (H, W) float32 (z along the optical axis) of a floor plus axis-aligned boxes;
+    0 (no reading) where a ray hits nothing within ``far_m``.
+
+    boxes: (x_min, y_min, x_max, y_max, height_m), each standing on the floor.
+    """
+    h, w = intrinsics.height_px, intrinsics.width_px
+    v, u = np.mgrid[0:h, 0:w]
+    fwd, left, up = camera_rays_base(u.ravel() + 0.5, v.ravel() + 0.5, intrinsics, tilt_rad)
+    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
+    dx = c * fwd - s * left
+    dy = s * fwd + c * left
+    dz = up
+    o = np.array([pose.x_m, pose.y_m, camera_height_m])
+    t = np.full(dx.shape, far_m, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(dz < 0, -o[2] / dz, np.inf)
+        t = np.minimum(t, t_floor)
+        d = np.stack([dx, dy, dz], axis=1).astype(np.float64)
+        for x0, y0, x1, y1, hz in boxes:
+            lo = np.array([x0, y0, 0.0]) - o
+            hi = np.array([x1, y1, hz]) - o
+            t1 = lo / d
+            t2 = hi / d
+            tmin = np.nanmax(np.minimum(t1, t2), axis=1)
+            tmax = np.nanmin(np.maximum(t1, t2), axis=1)
+            hit = (tmax >= tmin) & (tmax > 0)
+            t = np.where(hit & (tmin > 0), np.minimum(t, tmin), t)
+    t = np.where(t >= far_m, 0.0, t)
+    return t.reshape(h, w).astype(np.float32)
+
+
+def room_walls(x0: float, y0: float, x1: float, y1: float, height: float = 2.5, thick: float = 0.1):
+    return [
+        (x0 - thick, y0 - thick, x1 + thick, y0, height),
+        (x0 - thick, y1, x1 + thick, y1 + thick, height),
+        (x0 - thick, y0, x0, y1, height),
+        (x1, y0, x1 + thick, y1, height),
+    ]
+
+
+def observation(boxes, pose: Pose2D, intrinsics: Intrinsics = SMALL_INTRINSICS, rgb: np.ndarray | None = None,
+                goal: np.ndarray | None = None, step: int = 0) -> Observation:
+    depth = render_depth(boxes, pose, intrinsics)
+    if rgb is None:
+        rgb = np.zeros((intrinsics.height_px, intrinsics.width_px, 3), np.uint8)
+    if goal is None:
+        goal = np.zeros((64, 64, 3), np.uint8)
+    return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=intrinsics, goal_image=goal, step=step)

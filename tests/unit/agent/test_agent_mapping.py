@@ -1,0 +1,89 @@
+import math
+
+import numpy as np
+
+from agent.mapping import GridMap, MappingConfig
+from agent.types import Pose2D
+from agent_scenes import observation, room_walls
+
+ROOM = room_walls(-1.0, -2.0, 5.0, 2.0)  # 6 x 4 m room, robot at the origin facing +x
+
+
+def cell(grid, x, y):
+    i, j = grid.xy_to_ij(np.array([[x, y]]))[0]
+    return int(i), int(j)
+
+
+def test_front_wall_is_obstacle_and_floor_is_free():
+    grid = GridMap(MappingConfig(depth_stride_px=1))
+    grid.update(observation(ROOM, Pose2D()))
+    L = grid.layers
+    assert L.obstacle[cell(grid, 5.02, 0.0)]
+    assert L.obstacle[cell(grid, 5.02, 1.0)]
+    # open floor in the view is explored and free
+    for x in (2.5, 3.5, 4.5):
+        assert L.explored[cell(grid, x, 0.0)] and not L.obstacle[cell(grid, x, 0.0)]
+    # the blind zone at the robot's feet (floor visible only from ~1.9 m) is covered by the fan
+    assert L.explored[cell(grid, 0.5, 0.0)]
+    # behind the robot nothing is known
+    assert not L.explored[cell(grid, -0.5, 0.0)]
+    # no obstacle inside the room
+    inner = grid.xy_to_ij(np.array([[0.0, -1.5], [4.8, 1.5]]))
+    assert not L.obstacle[inner[0, 0]:inner[1, 0], inner[0, 1]:inner[1, 1]].any()
+
+
+def test_obstacle_height_band():
+    boxes = ROOM + [(2.0, -0.3, 2.4, 0.3, 0.05), (3.0, 0.8, 3.4, 1.2, 0.5)]
+    grid = GridMap(MappingConfig(depth_stride_px=1))
+    grid.update(observation(boxes, Pose2D()))
+    assert not grid.layers.obstacle[cell(grid, 2.02, 0.0)]  # 5 cm: below the 10 cm band
+    assert grid.layers.obstacle[cell(grid, 3.02, 1.0)]  # 50 cm box
+
+
+def test_far_points_are_kept_and_the_map_grows():
+    corridor = [(-1.0, -1.1, 16.0, -1.0, 2.5), (-1.0, 1.0, 16.0, 1.1, 2.5), (15.0, -1.0, 15.1, 1.0, 2.5)]
+    grid = GridMap(MappingConfig(initial_size_m=8.0, depth_stride_px=1))
+    upd = grid.update(observation(corridor, Pose2D()))
+    assert upd.grew and upd.n_beyond_max_depth == 0
+    assert grid.layers.obstacle[cell(grid, 15.02, 0.0)]  # the end wall 15 m away
+    assert grid.layers.explored[cell(grid, 12.0, 0.0)]
+
+
+def test_layers_do_not_drift_when_the_map_grows():
+    grid = GridMap(MappingConfig(initial_size_m=4.0))
+    goal_xy = (1.23, -0.77)
+    grid.set_goal_cells(grid.xy_to_ij(np.array([goal_xy])))
+    grid.mark_collision(Pose2D(0.0, 0.0, 0.0))
+    coll_before = grid.ij_to_xy(np.argwhere(grid.layers.collision))
+    grid.ensure_contains((-9.0, -7.0), (8.0, 6.5))
+    goal_after = grid.ij_to_xy(np.argwhere(grid.layers.goal))
+    assert len(goal_after) == 1
+    assert math.dist(goal_after[0], goal_xy) < grid.resolution_m
+    np.testing.assert_allclose(np.sort(grid.ij_to_xy(np.argwhere(grid.layers.collision)), axis=0),
+                               np.sort(coll_before, axis=0), atol=1e-9)
+
+
+def test_collision_mark_is_in_front_of_the_robot():
+    grid = GridMap()
+    grid.mark_collision(Pose2D(1.0, 1.0, math.pi / 2))  # facing +y
+    xy = grid.ij_to_xy(np.argwhere(grid.layers.collision))
+    assert len(xy) > 0
+    assert np.all(xy[:, 1] > 1.1) and np.all(xy[:, 1] < 1.35)
+    assert np.all(np.abs(xy[:, 0] - 1.0) < 0.2)
+
+
+def test_turning_in_place_covers_the_surroundings():
+    grid = GridMap()
+    for k in range(12):
+        grid.update(observation(ROOM, Pose2D(0.0, 0.0, k * math.radians(30))))
+    L = grid.layers
+    for x, y in [(0.5, 0.0), (-0.5, 0.0), (0.0, 0.6), (0.0, -0.6), (-0.8, 1.5)]:
+        assert L.explored[cell(grid, x, y)], (x, y)
+    assert L.obstacle[cell(grid, -0.98, 0.0)] and L.obstacle[cell(grid, 0.0, 2.02)]
+
+
+def test_visited_marks_the_segment():
+    grid = GridMap()
+    grid.mark_visited((0.0, 0.0), (0.25, 0.0))
+    xy = grid.ij_to_xy(np.argwhere(grid.layers.visited))
+    assert xy[:, 0].min() < 0.03 and xy[:, 0].max() > 0.22
