@@ -1,0 +1,379 @@
+"""The run manager: one robot, so one active run at a time, on a worker thread.
+
+The worker runs the project's one loop (CONTRIBUTING, "Contracts"):
+
+    obs = backend.reset(); agent.reset(obs.goal_image)
+    while True:
+        action = agent.act(obs); record = agent.last_record
+        backend.apply(action)
+        if action == STOP or budget spent: break
+        obs = backend.observe()
+
+and after every step publishes an immutable ``StepRecord`` to the store (SQLite
+row), the status stream (event), the viewer (a non-blocking offer: the viewer
+thread throttles) and the artifact writer. An operator stop is honoured between
+steps; the robot is never sent another action after it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+import traceback
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Protocol
+
+import numpy as np
+
+from agent.types import Action, BackendError, Pose2D
+from console.artifacts import ArtifactWriter, run_dir
+from console.events import EventHub
+from console.photos import GoalPhoto
+from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
+from console.store import RunStore, StepRow
+
+logger = logging.getLogger(__name__)
+
+
+class RunConflict(RuntimeError):
+    """A run is already active (HTTP 409)."""
+
+    def __init__(self, active_run_id: str) -> None:
+        super().__init__(f"run {active_run_id} is active; stop it or wait for it to end")
+        self.active_run_id = active_run_id
+
+
+class ViewerSink(Protocol):
+    def run_started(self, run_id: str, goal_rgb: np.ndarray, info: Mapping[str, Any]) -> None: ...
+
+    def offer(self, rec: StepRecord) -> None: ...
+
+    def run_ended(self, run_id: str, status: str, outcome: Outcome) -> None: ...
+
+
+@dataclass(slots=True)
+class _Active:
+    run_id: str
+    thread: threading.Thread
+    stop: threading.Event
+    stop_reason: str = ""
+
+
+class RunManager:
+    def __init__(
+        self,
+        store: RunStore,
+        hub: EventHub,
+        data_dir: Path,
+        providers: Mapping[str, BackendProvider],
+        viewer: ViewerSink | None = None,
+    ) -> None:
+        self.store = store
+        self.hub = hub
+        self.data_dir = Path(data_dir)
+        self.providers = dict(providers)
+        self.viewer = viewer
+        self._lock = threading.Lock()
+        self._active: _Active | None = None
+        self._closed = False
+
+    # --- control -----------------------------------------------------------
+
+    @property
+    def active_run_id(self) -> str | None:
+        with self._lock:
+            return self._active.run_id if self._active is not None else None
+
+    def start(self, resolved: ResolvedRun, goal: GoalPhoto, upload: bytes, received_s: float) -> str:
+        """Create the run record and its worker thread; returns the run id.
+
+        Raises ``RunConflict`` when a run is active, RuntimeError after shutdown."""
+        provider = self.providers[resolved.backend]
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the console is shutting down")
+            if self._active is not None and self._active.thread.is_alive():
+                raise RunConflict(self._active.run_id)
+            run_id = uuid.uuid4().hex[:12]
+            writer = ArtifactWriter(run_dir(self.data_dir, run_id))
+            writer.write_goal(goal.png_bytes(), upload, goal.extension)
+            goal_info = {
+                "format": goal.source_format,
+                "size_px": list(goal.original_size_px),
+                "agent_size_px": [int(goal.rgb.shape[1]), int(goal.rgb.shape[0])],
+                "sha256": goal.sha256,
+                "dhash": f"{goal.dhash:016x}",
+                "path": "goal.png",
+            }
+            self.store.create_run(
+                run_id,
+                backend=resolved.backend,
+                options=resolved.options,
+                goal=goal_info,
+                target=resolved.target,
+                created_s=received_s,
+            )
+            stop = threading.Event()
+            thread = threading.Thread(
+                target=self._work,
+                args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s),
+                name=f"run-{run_id}",
+                daemon=True,
+            )
+            self._active = _Active(run_id, thread, stop)
+            thread.start()
+        self.hub.publish("status", run_id, {"status": "pending", "backend": resolved.backend})
+        logger.info("run %s started (%s, %s)", run_id, resolved.backend, dict(resolved.options))
+        return run_id
+
+    def stop(self, run_id: str, reason: str = "stopped by the operator") -> bool:
+        """Ask the active run to stop after its current step. False if it is not active."""
+        with self._lock:
+            active = self._active
+            if active is None or active.run_id != run_id or not active.thread.is_alive():
+                return False
+            if not active.stop.is_set():
+                active.stop_reason = reason
+                active.stop.set()
+        self.store.update_run(run_id, status="stopping")
+        self.hub.publish("status", run_id, {"status": "stopping", "detail": reason})
+        return True
+
+    def wait(self, run_id: str, timeout_s: float) -> bool:
+        """Join the run's worker thread; True if it has ended."""
+        with self._lock:
+            active = self._active
+        if active is None or active.run_id != run_id:
+            return True
+        active.thread.join(timeout_s)
+        return not active.thread.is_alive()
+
+    def shutdown(self, timeout_s: float = 30.0) -> None:
+        """Stop the robot first: stop the active run and wait for its worker to close the backend."""
+        with self._lock:
+            self._closed = True
+            active = self._active
+        if active is not None and active.thread.is_alive():
+            logger.info("shutdown: stopping run %s", active.run_id)
+            self.stop(active.run_id, "the console is shutting down")
+            active.thread.join(timeout_s)
+            if active.thread.is_alive():
+                logger.error("run %s did not stop within %.0f s; it will be marked interrupted", active.run_id, timeout_s)
+
+    # --- the worker --------------------------------------------------------
+
+    def _work(
+        self,
+        run_id: str,
+        provider: BackendProvider,
+        resolved: ResolvedRun,
+        goal_rgb: np.ndarray,
+        writer: ArtifactWriter,
+        stop: threading.Event,
+        received_s: float,
+    ) -> None:
+        timings: dict[str, Any] = {}
+        started_s = time.time()
+        self.store.update_run(run_id, status="running", started_s=started_s)
+        self.hub.publish("status", run_id, {"status": "running", "detail": "preparing the backend and the agent"})
+        session: RunSession | None = None
+        last_action: Action | None = None
+        n_steps = 0
+        status, outcome = "failed", Outcome("error", "the run did not start")
+        traj_rows: list[dict[str, Any]] = []
+        part_sums: dict[str, float] = {}
+        try:
+            t0 = time.perf_counter()
+            session = provider.open(resolved, goal_rgb)
+            timings["open_s"] = time.perf_counter() - t0
+            self.store.update_run(run_id, agent_config=dict(session.agent_config))
+            if self.viewer is not None:
+                self.viewer.run_started(run_id, goal_rgb, {"backend": resolved.backend, **dict(resolved.options)})
+            t0 = time.perf_counter()
+            obs = session.backend.reset()
+            session.agent.reset(obs.goal_image)
+            timings["reset_s"] = time.perf_counter() - t0
+            trajectory: list[tuple[float, float]] = []
+            reid_history: list[tuple[int, float | None, float | None]] = []
+            reason = "budget"
+            t_loop = time.perf_counter()
+            for step in range(resolved.max_steps):
+                if stop.is_set():
+                    reason = "operator"
+                    break
+                t_step = time.perf_counter()
+                action = session.agent.act(obs)
+                record = session.agent.last_record
+                session.backend.apply(action)
+                last_action = action
+                if step == 0:
+                    timings["upload_to_first_action_s"] = time.time() - received_s
+                step_ms = 1000.0 * (time.perf_counter() - t_step)
+                pose = obs.pose
+                trajectory.append((pose.x_m, pose.y_m))
+                reid_history.append(
+                    (step, None if record is None else record.reid_score, None if record is None else record.reid_tau)
+                )
+                rec = StepRecord(
+                    run_id=run_id,
+                    step=step,
+                    t_s=time.time(),
+                    action=action,
+                    pose=pose,
+                    rgb=obs.rgb,
+                    depth_m=obs.depth_m,
+                    intrinsics=obs.intrinsics,
+                    camera_height_m=obs.camera_height_m,
+                    camera_tilt_rad=obs.camera_tilt_rad,
+                    goal_rgb=goal_rgb,
+                    record=record,
+                    trajectory_xy_m=np.asarray(trajectory, np.float64),
+                    reid_history=tuple(reid_history),
+                    step_ms=step_ms,
+                )
+                row = _step_row(rec)
+                traj_rows.append(_row_dict(row))
+                for k, v in row.timings.items():
+                    part_sums[k] = part_sums.get(k, 0.0) + float(v)
+                self._publish_step(rec, row)
+                writer.add_step(rec)
+                n_steps = step + 1
+                if action == Action.STOP:
+                    reason = "agent"
+                    break
+                obs = session.backend.observe()
+            timings["loop_s"] = time.perf_counter() - t_loop
+            if reason == "operator":
+                status = "stopped"
+                outcome = session.outcome(last_action, "operator")
+                with self._lock:
+                    why = self._active.stop_reason if self._active else ""
+                outcome = Outcome(outcome.outcome, why or outcome.detail, outcome.metrics)
+            else:
+                status = "finished"
+                outcome = session.outcome(last_action, reason)
+        except BackendError as exc:
+            logger.error("run %s: backend error (%s): %s", run_id, exc.reason, exc)
+            status, outcome = "failed", Outcome("error", f"backend error ({exc.reason}): {exc}")
+        except Exception as exc:  # the run fails, the console lives on; the traceback goes to the log
+            logger.error("run %s failed:\n%s", run_id, traceback.format_exc())
+            status, outcome = "failed", Outcome("error", f"{type(exc).__name__}: {exc}")
+        finally:
+            if session is not None:
+                try:
+                    session.close()
+                except Exception:  # closing must not hide the run's own outcome
+                    logger.exception("run %s: closing the backend failed", run_id)
+        t0 = time.perf_counter()
+        try:
+            summary = {"run_id": run_id, "status": status, "outcome": outcome.outcome, "metrics": outcome.metrics}
+            writer.finish(traj_rows, summary)
+        except Exception:
+            logger.exception("run %s: writing artifacts failed", run_id)
+        timings["artifacts_s"] = time.perf_counter() - t0
+        if n_steps:
+            timings["mean_step_ms"] = 1000.0 * timings.get("loop_s", 0.0) / n_steps
+            timings["agent_mean_ms"] = {k: v / n_steps for k, v in part_sums.items()}
+        ended_s = time.time()
+        timings["total_s"] = ended_s - received_s
+        self.store.update_run(
+            run_id,
+            status=status,
+            ended_s=ended_s,
+            outcome=outcome.outcome,
+            outcome_detail=outcome.detail,
+            metrics=dict(outcome.metrics) if outcome.metrics is not None else None,
+            timings=timings,
+            n_steps=n_steps,
+            error=outcome.detail if status == "failed" else None,
+        )
+        self.hub.publish(
+            "status",
+            run_id,
+            {
+                "status": status,
+                "outcome": outcome.outcome,
+                "detail": outcome.detail,
+                "metrics": _finite(outcome.metrics),
+                "n_steps": n_steps,
+            },
+        )
+        if self.viewer is not None:
+            try:
+                self.viewer.run_ended(run_id, status, outcome)
+            except Exception:
+                logger.exception("viewer failed at the end of run %s", run_id)
+        logger.info("run %s %s: %s (%s) after %d steps", run_id, status, outcome.outcome, outcome.detail, n_steps)
+        with self._lock:
+            if self._active is not None and self._active.run_id == run_id:
+                self._active = None
+
+    def _publish_step(self, rec: StepRecord, row: StepRow) -> None:
+        self.store.add_step(rec.run_id, row)
+        self.hub.publish(
+            "step",
+            rec.run_id,
+            {
+                "status": "running",
+                "step": row.step,
+                "action": rec.action.name,
+                "pose": [row.x_m, row.y_m, row.yaw_rad],
+                "mode": row.mode,
+                "reason": row.reason,
+                "reid_score": _finite(row.reid_score),
+                "reid_tau": _finite(row.reid_tau),
+                "goal_detected": row.goal_detected,
+                "n_goal_points": row.n_goal_points,
+                "step_ms": round(rec.step_ms, 1),
+                "t_s": rec.t_s,
+            },
+        )
+        if self.viewer is not None:
+            self.viewer.offer(rec)
+
+
+def _finite(value: Any) -> Any:
+    from console.store import json_safe
+
+    return json_safe(value)
+
+
+def _step_row(rec: StepRecord) -> StepRow:
+    r = rec.record
+    target = None if r is None else r.target_xy_m
+    return StepRow(
+        step=rec.step,
+        t_s=rec.t_s,
+        action=int(rec.action),
+        x_m=float(rec.pose.x_m),
+        y_m=float(rec.pose.y_m),
+        yaw_rad=float(rec.pose.yaw_rad),
+        mode="" if r is None else str(r.mode),
+        reason="" if r is None else str(r.reason),
+        reid_score=None if r is None or r.reid_score is None else float(r.reid_score),
+        reid_tau=None if r is None or r.reid_tau is None else float(r.reid_tau),
+        goal_detected=False if r is None else bool(r.goal_detected),
+        n_goal_points=0 if r is None else int(len(r.goal_points_xyz)),
+        target_x_m=None if target is None else float(target[0]),
+        target_y_m=None if target is None else float(target[1]),
+        target_kind=None if r is None else r.target_kind,
+        planner_error=None if r is None else r.planner_error,
+        timings={"step_ms": rec.step_ms, **({} if r is None else {k: float(v) for k, v in r.timings_ms.items()})},
+    )
+
+
+def _row_dict(row: StepRow) -> dict[str, Any]:
+    out = {name: getattr(row, name) for name in StepRow.__slots__}
+    out["timings"] = dict(row.timings)
+    out["action_name"] = Action(row.action).name
+    if not math.isfinite(out["yaw_rad"]):
+        out["yaw_rad"] = None
+    return out
+
+
+def start_pose_dict(pose: Pose2D) -> dict[str, float]:
+    return {"x_m": pose.x_m, "y_m": pose.y_m, "yaw_rad": pose.yaw_rad}

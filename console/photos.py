@@ -1,0 +1,185 @@
+"""Goal-photo ingestion: bytes from a phone (or a file) -> an upright RGB array.
+
+Phones send JPEG (with an EXIF orientation tag instead of rotated pixels), HEIC
+(iPhones), PNG screenshots or WebP. Everything else, and anything that is not a
+usable picture, is rejected with a ``PhotoError`` carrying an HTTP status and a
+machine-readable code, so the API can answer with a clear 4xx.
+
+The pixel count is checked from the header *before* any pixel is decoded, which
+is what defuses decompression bombs (a tiny file declaring a gigantic image).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import logging
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+logger = logging.getLogger(__name__)
+
+try:  # HEIC/HEIF from iPhones; pillow-heif is a hard dependency but keep the error clear.
+    import pillow_heif
+
+    pillow_heif.register_heif_opener()
+    _HEIF = True
+except ImportError:  # pragma: no cover - dependency is in pyproject
+    _HEIF = False
+    logger.warning("pillow-heif is not installed: HEIC photos will be rejected")
+
+# PIL format name -> file extension used for the stored original.
+ACCEPTED_FORMATS: dict[str, str] = {"JPEG": "jpg", "PNG": "png", "WEBP": "webp", "HEIF": "heic"}
+if not _HEIF:  # pragma: no cover
+    ACCEPTED_FORMATS.pop("HEIF")
+
+
+class PhotoError(ValueError):
+    """A goal photo that cannot be used. ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, status: int, code: str, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+        self.code = code
+
+
+@dataclass(frozen=True, slots=True)
+class PhotoLimits:
+    max_bytes: int = 25 * 1024 * 1024  # a 48 MP iPhone HEIC is ~5 MB, a JPEG ~15 MB
+    max_pixels: int = 50_000_000  # decoded pixel count (width * height) from the header
+    min_side_px: int = 32  # smaller than this holds no keypoints worth matching
+    max_side_for_agent_px: int = 1024  # the goal image handed to the agent is downscaled to this
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GoalPhoto:
+    """A decoded, upright goal photo.
+
+    rgb: (h, w, 3) uint8, R,G,B, EXIF orientation applied, long side at most
+         ``PhotoLimits.max_side_for_agent_px``.
+    source_format: PIL format name of the upload (JPEG, PNG, WEBP, HEIF).
+    original_size_px: (width, height) of the upload after orientation.
+    sha256: of the uploaded bytes (identifies a file re-uploaded unchanged).
+    dhash: 64-bit difference hash of the upright picture (identifies the same
+           picture re-encoded or resized; see ``dhash``).
+    """
+
+    rgb: np.ndarray
+    source_format: str
+    original_size_px: tuple[int, int]
+    sha256: str
+    dhash: int
+
+    @property
+    def extension(self) -> str:
+        return ACCEPTED_FORMATS[self.source_format]
+
+    def png_bytes(self) -> bytes:
+        buf = io.BytesIO()
+        Image.fromarray(self.rgb).save(buf, format="PNG")
+        return buf.getvalue()
+
+
+def dhash(rgb: np.ndarray, hash_size: int = 8) -> int:
+    """Difference hash: sign of horizontal gradients of a (hash_size+1 x hash_size) grey thumbnail.
+
+    Robust to re-encoding and rescaling (Krawetz's dHash); two pictures are "the same" when the
+    Hamming distance of their hashes is small (<= 6 of 64 bits in practice)."""
+    grey = Image.fromarray(np.asarray(rgb, dtype=np.uint8)).convert("L")
+    small = np.asarray(grey.resize((hash_size + 1, hash_size), Image.Resampling.LANCZOS), dtype=np.int16)
+    bits = (small[:, 1:] > small[:, :-1]).flatten()
+    value = 0
+    for bit in bits:
+        value = (value << 1) | int(bit)
+    return value
+
+
+def hamming(a: int, b: int) -> int:
+    return int(bin(a ^ b).count("1"))
+
+
+def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
+    """Validate and decode an uploaded photo. Raises ``PhotoError`` (4xx) when unusable."""
+    if not data:
+        raise PhotoError(400, "empty", "the goal photo is empty (0 bytes)")
+    if len(data) > limits.max_bytes:
+        raise PhotoError(
+            413, "too_large", f"the goal photo is {len(data)} bytes; the limit is {limits.max_bytes} bytes"
+        )
+    try:
+        with warnings.catch_warnings():
+            # PIL warns (and later raises) on huge images; our own, lower pixel limit comes first.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            image = Image.open(io.BytesIO(data))
+    except UnidentifiedImageError:
+        raise PhotoError(
+            415, "unsupported_format", "the upload is not an image in a supported format (JPEG, PNG, WebP, HEIC)"
+        ) from None
+    except Image.DecompressionBombError as exc:
+        raise PhotoError(413, "too_many_pixels", f"the image declares too many pixels: {exc}") from None
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise PhotoError(422, "corrupt", f"the image header cannot be read: {exc}") from None
+
+    fmt = (image.format or "").upper()
+    if fmt not in ACCEPTED_FORMATS:
+        raise PhotoError(
+            415, "unsupported_format", f"{fmt or 'this'} images are not accepted; send JPEG, PNG, WebP or HEIC"
+        )
+    width, height = image.size
+    if width * height > limits.max_pixels:
+        raise PhotoError(
+            413,
+            "too_many_pixels",
+            f"the image is {width}x{height} = {width * height} pixels; the limit is {limits.max_pixels}",
+        )
+    if min(width, height) < limits.min_side_px:
+        raise PhotoError(
+            422, "too_small", f"the image is {width}x{height}; each side must be at least {limits.min_side_px} px"
+        )
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            image.load()
+            upright = ImageOps.exif_transpose(image)  # phones store rotation as an EXIF tag
+            if getattr(image, "n_frames", 1) > 1:
+                logger.info("goal photo has %d frames; using the first", image.n_frames)
+            rgb_image = _to_rgb(upright)
+    except PhotoError:
+        raise
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise PhotoError(422, "corrupt", f"the image data cannot be decoded: {exc}") from None
+
+    original_size = rgb_image.size
+    long_side = max(original_size)
+    if long_side > limits.max_side_for_agent_px:
+        scale = limits.max_side_for_agent_px / long_side
+        new_size = (max(1, round(original_size[0] * scale)), max(1, round(original_size[1] * scale)))
+        rgb_image = rgb_image.resize(new_size, Image.Resampling.LANCZOS)
+    rgb = np.ascontiguousarray(np.asarray(rgb_image, dtype=np.uint8))
+    if float(rgb.std()) < 1.0:
+        raise PhotoError(422, "blank", "the image is a single flat colour; it shows no object to look for")
+    return GoalPhoto(
+        rgb=rgb,
+        source_format=fmt,
+        original_size_px=(int(original_size[0]), int(original_size[1])),
+        sha256=hashlib.sha256(data).hexdigest(),
+        dhash=dhash(rgb),
+    )
+
+
+def _to_rgb(image: Image.Image) -> Image.Image:
+    """Any mode -> RGB; transparency is composited on white (screenshots, stickers)."""
+    if image.mode == "RGB":
+        return image
+    if image.mode in ("RGBA", "LA", "PA") or (image.mode == "P" and "transparency" in image.info):
+        rgba = image.convert("RGBA")
+        background = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        return Image.alpha_composite(background, rgba).convert("RGB")
+    if image.mode in ("I;16", "I;16B", "I;16L", "I"):
+        arr = np.asarray(image, dtype=np.float64)
+        arr = 255.0 * (arr - arr.min()) / max(1.0, float(arr.max() - arr.min()))
+        return Image.fromarray(arr.astype(np.uint8)).convert("RGB")
+    return image.convert("RGB")

@@ -1,0 +1,155 @@
+"""Request guards: the run token, a same-origin check and a request-size limit.
+
+* Token. Bound to loopback, only this machine's users can reach the console, and no
+  token is needed. Bound to any other address, every request that can start or stop
+  a run must carry the token (``Authorization: Bearer <token>``, ``X-Imgnav-Token``, or
+  the form field ``token``). The token is generated at start (and printed) unless
+  configured.
+* Origin. No CORS headers are ever sent, so other sites cannot read answers; but a
+  browser still *sends* a cross-site form POST. State-changing requests whose
+  ``Origin`` is not this server are refused (403), which stops a web page elsewhere
+  from starting the robot through a visitor's browser.
+* Size. Bodies over ``max_bytes`` get 413 before they are read (Content-Length) or as
+  soon as the count passes the limit (chunked uploads).
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import logging
+import secrets
+from typing import Any, Awaitable, Callable
+from urllib.parse import urlsplit
+
+logger = logging.getLogger(__name__)
+
+Scope = dict[str, Any]
+Receive = Callable[[], Awaitable[dict[str, Any]]]
+Send = Callable[[dict[str, Any]], Awaitable[None]]
+
+
+def is_loopback(host: str) -> bool:
+    if host in ("localhost", ""):
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(18)
+
+
+def token_matches(expected: str | None, given: str | None) -> bool:
+    if expected is None:
+        return True
+    if not given:
+        return False
+    return hmac.compare_digest(expected.encode(), given.strip().encode())
+
+
+def token_from_headers(headers: Any) -> str | None:
+    auth = headers.get("authorization", "")
+    if auth.lower().startswith("bearer "):
+        return auth[7:].strip()
+    return headers.get("x-imgnav-token")
+
+
+async def _send_json(send: Send, status: int, detail: dict[str, str]) -> None:
+    body = json.dumps({"detail": detail}).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())],
+        }
+    )
+    await send({"type": "http.response.body", "body": body})
+
+
+class _TooLarge(Exception):
+    pass
+
+
+class GuardMiddleware:
+    """Pure ASGI middleware: size limit, same-origin check on unsafe methods, security headers."""
+
+    def __init__(self, app: Callable, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        method = scope.get("method", "GET")
+        if method not in ("GET", "HEAD", "OPTIONS"):
+            origin = headers.get("origin")
+            if origin and origin != "null" and not _same_origin(origin, headers.get("host", "")):
+                await _send_json(send, 403, {"code": "cross_origin", "message": f"requests from {origin} are not allowed"})
+                return
+            if origin == "null":
+                await _send_json(send, 403, {"code": "cross_origin", "message": "opaque-origin requests are not allowed"})
+                return
+        if method == "OPTIONS":  # no CORS: pre-flights get nothing that would allow a request
+            await _send_json(send, 405, {"code": "no_cors", "message": "cross-origin requests are not supported"})
+            return
+        length = headers.get("content-length")
+        if length is not None:
+            try:
+                declared = int(length)
+            except ValueError:
+                await _send_json(send, 400, {"code": "bad_length", "message": "invalid Content-Length"})
+                return
+            if declared > self.max_bytes:
+                await _send_json(
+                    send,
+                    413,
+                    {"code": "request_too_large", "message": f"the request is {declared} bytes; the limit is {self.max_bytes}"},
+                )
+                return
+        received = 0
+        overflow = False
+        answered = False
+        too_large = {"code": "request_too_large", "message": f"the request exceeds {self.max_bytes} bytes"}
+
+        async def limited_receive() -> dict[str, Any]:
+            nonlocal received, overflow
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    overflow = True
+                    raise _TooLarge()
+            return message
+
+        async def guarded_send(message: dict[str, Any]) -> None:
+            nonlocal answered
+            if overflow:
+                # The app's own answer to the aborted read (a 400 or 500) is replaced by a 413.
+                if not answered:
+                    answered = True
+                    await _send_json(send, 413, too_large)
+                return
+            if message["type"] == "http.response.start":
+                answered = True
+                extra = [(b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer")]
+                message = {**message, "headers": list(message.get("headers", [])) + extra}
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, guarded_send)
+        except _TooLarge:
+            if not answered:
+                await _send_json(send, 413, too_large)
+
+
+def _same_origin(origin: str, host_header: str) -> bool:
+    parts = urlsplit(origin)
+    if parts.scheme not in ("http", "https") or not parts.netloc:
+        return False
+    return parts.netloc.lower() == host_header.lower()

@@ -1,0 +1,110 @@
+"""What the run manager needs from a backend choice, and what it publishes per step.
+
+A *backend choice* (simulator, Stretch) is a ``BackendProvider``: it checks a
+run's options quickly in the request (``resolve``, raising ``OptionsError`` ->
+HTTP 422) and builds the backend and the agent on the worker thread (``open``),
+returning a ``RunSession``. The console owns the loop that joins them
+(CONTRIBUTING: only console/ and sim/evaluation/ wire agents and backends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Protocol
+
+import numpy as np
+
+from agent.types import Action, Agent, AgentRecord, Backend, Intrinsics, Pose2D
+
+
+class OptionsError(ValueError):
+    """A run's options are invalid (unknown home, malformed start pose, ...)."""
+
+
+class ProviderUnavailable(RuntimeError):
+    """The backend choice exists but cannot be used now (e.g. no robot configured)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ResolvedRun:
+    """A run's options after validation.
+
+    options: JSON-able, stored with the run (home, start, episode, max_steps, ...).
+    target:  what is known about the goal instance (JSON-able) or None when unknown;
+             a known target means the run is scored.
+    max_steps: the step budget (DESIGN: 1000).
+    """
+
+    backend: str
+    options: Mapping[str, Any]
+    target: Mapping[str, Any] | None
+    max_steps: int
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """How a run ended. ``outcome``: success | failure | unscored | stopped | error.
+
+    ``metrics`` holds success, spl, ne_m, ... when the target was known."""
+
+    outcome: str
+    detail: str
+    metrics: Mapping[str, Any] | None = None
+
+
+class RunSession(Protocol):
+    """A backend and an agent, ready for one run.
+
+    ``world_from_start``: optional pose of the run's start in a world frame known to
+    the viewer (the simulator's home frame); None on a real robot."""
+
+    backend: Backend
+    agent: Agent
+    agent_config: Mapping[str, Any]
+
+    def outcome(self, last_action: Action | None, reason: str) -> Outcome: ...
+
+    def close(self) -> None: ...
+
+
+class BackendProvider(Protocol):
+    name: str
+    label: str
+
+    def available(self) -> tuple[bool, str]:
+        """(usable now, why not) for the pages' backend choice."""
+        ...
+
+    def describe(self) -> Mapping[str, Any]:
+        """JSON for the pages: homes, episodes, starts, gallery... whatever the choice offers."""
+        ...
+
+    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun: ...
+
+    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession: ...
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class StepRecord:
+    """An immutable account of one step, published after ``backend.apply`` (DESIGN section 4).
+
+    rgb / depth_m / intrinsics: the observation the agent acted on (start-relative pose).
+    record: the agent's own account (None if the agent offers none).
+    trajectory_xy_m: (N, 2) float64 positions of every step so far, including this one.
+    """
+
+    run_id: str
+    step: int
+    t_s: float
+    action: Action
+    pose: Pose2D
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: Intrinsics
+    camera_height_m: float
+    camera_tilt_rad: float
+    goal_rgb: np.ndarray
+    record: AgentRecord | None
+    trajectory_xy_m: np.ndarray
+    reid_history: tuple[tuple[int, float | None, float | None], ...] = field(default=())
+    step_ms: float = 0.0

@@ -1,0 +1,322 @@
+"""The console's run records: one SQLite file under the data directory.
+
+Tables
+------
+runs   one row per run: goal photo (path + hashes), backend and options, agent
+       configuration, status, outcome, metrics and timings (JSON columns).
+steps  one row per agent step: action, pose, mode, reason, re-ID score and tau,
+       target, per-part timings.
+
+Everything is written through one connection guarded by a lock (the worker
+thread writes steps while request handlers read). WAL mode lets readers go on
+while a step is being written. On open, any run still marked active is marked
+``interrupted``: the process that owned it is gone.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+logger = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+
+# Run status values. ``pending``/``running`` are active; the rest are final.
+ACTIVE_STATUSES = ("pending", "running", "stopping")
+FINAL_STATUSES = ("finished", "stopped", "failed", "interrupted")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS runs (
+    id              TEXT PRIMARY KEY,
+    created_s       REAL NOT NULL,
+    started_s       REAL,
+    ended_s         REAL,
+    status          TEXT NOT NULL,
+    backend         TEXT NOT NULL,
+    options_json    TEXT NOT NULL,
+    agent_json      TEXT NOT NULL DEFAULT '{}',
+    goal_json       TEXT NOT NULL,
+    target_json     TEXT,
+    outcome         TEXT,
+    outcome_detail  TEXT,
+    metrics_json    TEXT,
+    timings_json    TEXT NOT NULL DEFAULT '{}',
+    n_steps         INTEGER NOT NULL DEFAULT 0,
+    error           TEXT
+);
+CREATE INDEX IF NOT EXISTS runs_created ON runs (created_s);
+CREATE TABLE IF NOT EXISTS steps (
+    run_id          TEXT NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
+    step            INTEGER NOT NULL,
+    t_s             REAL NOT NULL,
+    action          INTEGER NOT NULL,
+    x_m             REAL NOT NULL,
+    y_m             REAL NOT NULL,
+    yaw_rad         REAL NOT NULL,
+    mode            TEXT NOT NULL,
+    reason          TEXT NOT NULL,
+    reid_score      REAL,
+    reid_tau        REAL,
+    goal_detected   INTEGER NOT NULL,
+    n_goal_points   INTEGER NOT NULL,
+    target_x_m      REAL,
+    target_y_m      REAL,
+    target_kind     TEXT,
+    planner_error   TEXT,
+    timings_json    TEXT NOT NULL,
+    PRIMARY KEY (run_id, step)
+);
+"""
+
+_JSON_COLUMNS = {
+    "options_json": "options",
+    "agent_json": "agent_config",
+    "goal_json": "goal",
+    "target_json": "target",
+    "metrics_json": "metrics",
+    "timings_json": "timings",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class StepRow:
+    """One agent step as stored (pose in the run's start-relative frame)."""
+
+    step: int
+    t_s: float
+    action: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    mode: str
+    reason: str
+    reid_score: float | None
+    reid_tau: float | None
+    goal_detected: bool
+    n_goal_points: int
+    target_x_m: float | None
+    target_y_m: float | None
+    target_kind: str | None
+    planner_error: str | None
+    timings: Mapping[str, float]
+
+
+class RunStore:
+    """SQLite-backed run records. Thread-safe; one instance per data directory."""
+
+    def __init__(self, db_path: Path) -> None:
+        self.db_path = Path(db_path)
+        self.db_path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(str(self.db_path), check_same_thread=False, isolation_level=None)
+        self._db.row_factory = sqlite3.Row
+        with self._lock:
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+            self._db.execute(
+                "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
+            )
+
+    # --- lifecycle ---------------------------------------------------------
+
+    def mark_interrupted(self) -> list[str]:
+        """Mark runs left active by a previous process as interrupted; returns their ids."""
+        with self._lock:
+            rows = self._db.execute(
+                f"SELECT id FROM runs WHERE status IN ({','.join('?' * len(ACTIVE_STATUSES))})", ACTIVE_STATUSES
+            ).fetchall()
+            ids = [r["id"] for r in rows]
+            now = time.time()
+            for run_id in ids:
+                self._db.execute(
+                    "UPDATE runs SET status='interrupted', outcome='interrupted', "
+                    "outcome_detail='the console stopped while this run was active', ended_s=? WHERE id=?",
+                    (now, run_id),
+                )
+        if ids:
+            logger.warning("marked %d run(s) interrupted by the last shutdown: %s", len(ids), ", ".join(ids))
+        return ids
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # --- runs --------------------------------------------------------------
+
+    def create_run(
+        self,
+        run_id: str,
+        *,
+        backend: str,
+        options: Mapping[str, Any],
+        goal: Mapping[str, Any],
+        target: Mapping[str, Any] | None,
+        created_s: float,
+    ) -> None:
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO runs (id, created_s, status, backend, options_json, goal_json, target_json) "
+                "VALUES (?, ?, 'pending', ?, ?, ?, ?)",
+                (run_id, created_s, backend, _dump(options), _dump(goal), _dump(target) if target else None),
+            )
+
+    def update_run(self, run_id: str, **fields: Any) -> None:
+        """Update columns; JSON columns are given by their short names (``metrics=...``)."""
+        if not fields:
+            return
+        columns = []
+        values: list[Any] = []
+        reverse = {short: col for col, short in _JSON_COLUMNS.items()}
+        allowed = {"started_s", "ended_s", "status", "outcome", "outcome_detail", "n_steps", "error"}
+        for key, value in fields.items():
+            if key in reverse:
+                columns.append(f"{reverse[key]}=?")
+                values.append(_dump(value) if value is not None else None)
+            elif key in allowed:
+                columns.append(f"{key}=?")
+                values.append(value)
+            else:
+                raise KeyError(f"unknown run column {key!r}")
+        values.append(run_id)
+        with self._lock:
+            self._db.execute(f"UPDATE runs SET {', '.join(columns)} WHERE id=?", values)
+
+    def get_run(self, run_id: str) -> dict[str, Any] | None:
+        with self._lock:
+            row = self._db.execute("SELECT * FROM runs WHERE id=?", (run_id,)).fetchone()
+        return _run_dict(row) if row is not None else None
+
+    def list_runs(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT * FROM runs ORDER BY created_s DESC LIMIT ? OFFSET ?", (int(limit), int(offset))
+            ).fetchall()
+        return [_run_dict(r) for r in rows]
+
+    # --- steps -------------------------------------------------------------
+
+    def add_step(self, run_id: str, row: StepRow) -> None:
+        with self._lock:
+            self._db.execute(
+                "INSERT OR REPLACE INTO steps VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                (
+                    run_id,
+                    row.step,
+                    row.t_s,
+                    row.action,
+                    row.x_m,
+                    row.y_m,
+                    row.yaw_rad,
+                    row.mode,
+                    row.reason,
+                    row.reid_score,
+                    row.reid_tau,
+                    int(row.goal_detected),
+                    row.n_goal_points,
+                    row.target_x_m,
+                    row.target_y_m,
+                    row.target_kind,
+                    row.planner_error,
+                    _dump(dict(row.timings)),
+                ),
+            )
+            self._db.execute("UPDATE runs SET n_steps=? WHERE id=?", (row.step + 1, run_id))
+
+    def steps(self, run_id: str) -> list[StepRow]:
+        with self._lock:
+            rows = self._db.execute("SELECT * FROM steps WHERE run_id=? ORDER BY step", (run_id,)).fetchall()
+        return [
+            StepRow(
+                step=r["step"],
+                t_s=r["t_s"],
+                action=r["action"],
+                x_m=r["x_m"],
+                y_m=r["y_m"],
+                yaw_rad=r["yaw_rad"],
+                mode=r["mode"],
+                reason=r["reason"],
+                reid_score=r["reid_score"],
+                reid_tau=r["reid_tau"],
+                goal_detected=bool(r["goal_detected"]),
+                n_goal_points=r["n_goal_points"],
+                target_x_m=r["target_x_m"],
+                target_y_m=r["target_y_m"],
+                target_kind=r["target_kind"],
+                planner_error=r["planner_error"],
+                timings=json.loads(r["timings_json"]),
+            )
+            for r in rows
+        ]
+
+
+def _dump(value: Any) -> str:
+    return json.dumps(json_safe(value), sort_keys=True, allow_nan=False, default=_json_default)
+
+
+def json_safe(value: Any) -> Any:
+    """Non-finite floats -> None (JSON has no NaN/inf; browsers reject them), recursively."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    try:
+        import numpy as np
+
+        if isinstance(value, np.floating):
+            return json_safe(float(value))
+        if isinstance(value, np.integer):
+            return int(value)
+        if isinstance(value, np.bool_):
+            return bool(value)
+    except ImportError:  # pragma: no cover
+        pass
+    return value
+
+
+def _json_default(value: Any) -> Any:
+    try:
+        import numpy as np
+
+        if isinstance(value, np.generic):
+            return value.item()
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+    except ImportError:  # pragma: no cover
+        pass
+    if isinstance(value, (set, frozenset, tuple)):
+        return list(value)
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def _run_dict(row: sqlite3.Row) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in row.keys():
+        value = row[key]
+        if key in _JSON_COLUMNS:
+            out[_JSON_COLUMNS[key]] = json.loads(value) if value is not None else None
+        else:
+            out[key] = value
+    return out
+
+
+def as_step_rows(rows: Iterable[StepRow]) -> list[dict[str, Any]]:
+    """Step rows as plain dicts (for JSON)."""
+    return [
+        {name: getattr(r, name) if name != "timings" else dict(r.timings) for name in StepRow.__slots__}
+        for r in rows
+    ]

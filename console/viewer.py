@@ -1,0 +1,363 @@
+"""The live 3D view: a viser server showing the active run (read-only, plus a stop button).
+
+Scene (the run's start-relative frame, z up, metres):
+  /map/occupancy   the agent's map layers as a textured floor plane (unknown cells transparent):
+                   explored, visited, obstacles, frontiers, collisions, goal cells
+  /map/obstacles   obstacle cells as a point cloud (a few heights, so walls read as walls)
+  /goal/points     projected goal points (red)
+  /plan            planned path (yellow) and /target the frontier or goal target (magenta)
+  /trajectory      the path driven so far (green)
+  /robot           the robot body (cylinder) and /robot_camera a frustum textured with the live RGB
+GUI: status, stop button (asks for the token when the console requires one), live RGB,
+depth, goal photo, keypoint matches, and re-ID score against tau over the steps.
+
+Publishing never blocks the control loop: the worker thread only ``offer``s its
+latest ``StepRecord``; this module's thread takes the newest one at most
+``pose_hz`` times a second (pose, images) and redraws the map at most ``map_hz``.
+Records in between are skipped, which is the point.
+"""
+
+from __future__ import annotations
+
+import hmac
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from console.pictures import depth_rgb, fit_height, layers_rgb, match_picture
+from console.session import Outcome, StepRecord
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ViewerConfig:
+    host: str = "127.0.0.1"
+    port: int = 0  # 0: any free port (viser would silently take the next one if busy anyway)
+    map_hz: float = 1.5  # DESIGN section 5: map at 1-2 Hz
+    pose_hz: float = 10.0  # pose and images at up to 10 Hz
+    image_height_px: int = 240  # GUI images are downscaled to this height before sending
+    max_obstacle_points: int = 30_000
+
+
+def camera_rotation(yaw_rad: float, tilt_rad: float) -> np.ndarray:
+    """World-from-camera rotation (3x3) for an OpenCV camera (x right, y down, z forward)
+    on a robot heading ``yaw_rad`` with the optical axis pitched down by ``tilt_rad``."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    forward = np.array([c * math.cos(tilt_rad), s * math.cos(tilt_rad), -math.sin(tilt_rad)])
+    right = np.array([s, -c, 0.0])
+    down = np.cross(forward, right)
+    return np.stack([right, down, forward], axis=1)
+
+
+def rotation_to_wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
+    """A proper rotation matrix -> unit quaternion (w, x, y, z) (Shepperd's method)."""
+    m = np.asarray(R, np.float64)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = ((m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s)
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s)
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return (w / n, x / n, y / n, z / n)
+
+
+def _segments(xy: np.ndarray, z_m: float) -> np.ndarray:
+    """(N, 2) polyline -> (N-1, 2, 3) line segments at height z_m."""
+    xy = np.asarray(xy, np.float32).reshape(-1, 2)
+    if len(xy) < 2:
+        return np.zeros((0, 2, 3), np.float32)
+    pts = np.concatenate([xy, np.full((len(xy), 1), z_m, np.float32)], axis=1)
+    return np.stack([pts[:-1], pts[1:]], axis=1)
+
+
+def _set_segments(handle: Any, segments: np.ndarray, colour: tuple[int, int, int]) -> None:
+    """Replace a line-segment node's points; its per-point colours must match in count."""
+    handle.points = segments.astype(np.float32)
+    handle.colors = np.broadcast_to(np.array(colour, np.uint8), segments.shape).copy()
+
+
+class Viewer:
+    """Owns the viser server and its publishing thread."""
+
+    def __init__(
+        self,
+        config: ViewerConfig = ViewerConfig(),
+        on_stop: Callable[[], str] | None = None,
+        token: str | None = None,
+    ) -> None:
+        import viser  # heavy import, only when a viewer is wanted
+
+        self.config = config
+        self._on_stop = on_stop
+        self._token = token
+        self.server = viser.ViserServer(host=config.host, port=config.port, label="imgnav", verbose=False)
+        # The share button asks an outside service for a public tunnel: never offer it.
+        self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="medium")
+        self.server.scene.set_up_direction("+z")
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._latest: StepRecord | None = None
+        self._pending_map = False
+        self._closed = False
+        self._run_id: str | None = None
+        self._last_pose_s = 0.0
+        self._last_map_s = 0.0
+        self.n_published = 0
+        self._build_scene()
+        self._build_gui()
+        self._thread = threading.Thread(target=self._loop, name="viewer", daemon=True)
+        self._thread.start()
+        logger.info("viewer (viser) on port %d", self.port)
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+    # --- layout ------------------------------------------------------------
+
+    def _build_scene(self) -> None:
+        scene = self.server.scene
+        scene.add_grid("/grid", width=20.0, height=20.0, cell_size=1.0, position=(0.0, 0.0, -0.01))
+        self._robot = scene.add_cylinder(
+            "/robot", radius=0.17, height=1.41, color=(40, 100, 230), position=(0.0, 0.0, 0.705), visible=False
+        )
+        self._frustum = scene.add_camera_frustum(
+            "/robot_camera", fov=math.radians(68.6), aspect=360 / 640, scale=0.35, color=(40, 100, 230), visible=False
+        )
+        self._trajectory = None
+        self._plan = None
+        self._goal_points = None
+        self._target = None
+        self._occupancy = None
+        self._obstacles = None
+
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        self._status = gui.add_markdown("**imgnav** - no run yet")
+        self._token_box = gui.add_text("Token", initial_value="", visible=self._token is not None)
+        self._stop_button = gui.add_button("Stop the run", color="red", disabled=True)
+        self._stop_button.on_click(self._stop_clicked)
+        self._stop_note = gui.add_markdown("")
+        blank = np.full((8, 8, 3), 200, np.uint8)
+        with gui.add_folder("Camera"):
+            self._rgb_img = gui.add_image(blank, label="egocentric RGB")
+            self._depth_img = gui.add_image(blank, label="depth (turbo, 0-5 m)")
+        with gui.add_folder("Goal"):
+            self._goal_img = gui.add_image(blank, label="goal photo")
+            self._match_img = gui.add_image(blank, label="keypoint matches (goal | view)")
+        with gui.add_folder("Re-identification"):
+            self._plot = gui.add_uplot(
+                data=(np.zeros(1), np.zeros(1), np.zeros(1)),
+                series=(
+                    {"label": "step"},
+                    {"label": "score", "stroke": "#1f77b4", "width": 2},
+                    {"label": "tau", "stroke": "#d62728", "width": 1, "dash": [6, 4]},
+                ),
+                title="re-ID score vs tau",
+                aspect=1.6,
+            )
+
+    def _stop_clicked(self, event: Any) -> None:
+        if self._token is not None and not hmac.compare_digest(self._token_box.value.strip(), self._token):
+            self._stop_note.content = "Wrong or missing token: the run goes on."
+            return
+        message = self._on_stop() if self._on_stop is not None else "no run manager"
+        self._stop_note.content = message
+
+    # --- called by the run manager (worker thread): must be cheap ---------------
+
+    def run_started(self, run_id: str, goal_rgb: np.ndarray, info: Mapping[str, Any]) -> None:
+        with self._lock:
+            self._run_id = run_id
+            self._latest = None
+        self._status.content = f"**Run {run_id}** - starting ({info.get('backend', '')})"
+        self._goal_img.image = fit_height(goal_rgb, self.config.image_height_px)
+        self._stop_button.disabled = False
+        self._stop_note.content = ""
+        for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
+            if handle is not None:
+                handle.remove()
+        self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
+
+    def offer(self, rec: StepRecord) -> None:
+        with self._wake:
+            self._latest = rec
+            self._pending_map = True
+            self._wake.notify()
+
+    def run_ended(self, run_id: str, status: str, outcome: Outcome) -> None:
+        with self._wake:
+            latest = self._latest
+            self._latest = None
+        if latest is not None and latest.run_id == run_id:
+            self.publish(latest, with_map=True)  # the final state, whatever the throttle said
+        metrics = ""
+        if outcome.metrics:
+            shown = {k: v for k, v in outcome.metrics.items() if isinstance(v, (int, float, bool))}
+            metrics = " - " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items())
+        self._status.content = f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
+        self._stop_button.disabled = True
+
+    def close(self) -> None:
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        self._thread.join(5.0)
+        self.server.stop()
+
+    # --- the publishing thread ---------------------------------------------
+
+    def _loop(self) -> None:
+        pose_period = 1.0 / self.config.pose_hz
+        map_period = 1.0 / self.config.map_hz
+        while True:
+            with self._wake:
+                while self._latest is None and not self._closed:
+                    self._wake.wait()
+                if self._closed:
+                    return
+                wait_s = self._last_pose_s + pose_period - time.monotonic()
+                if wait_s > 0:
+                    self._wake.wait(wait_s)  # throttle: newer records replace this one meanwhile
+                    if self._closed:
+                        return
+                rec = self._latest
+                self._latest = None
+                if rec is None:
+                    continue
+            now = time.monotonic()
+            with_map = now - self._last_map_s >= map_period
+            try:
+                self.publish(rec, with_map=with_map)
+            except Exception:  # the viewer must never take the console down; log and go on
+                logger.exception("viewer publishing failed at step %d", rec.step)
+
+    def publish(self, rec: StepRecord, with_map: bool) -> None:
+        """Send one step to the browsers (pose, images; the map too if ``with_map``)."""
+        now = time.monotonic()
+        self._last_pose_s = now
+        r = rec.record
+        scene = self.server.scene
+        with self.server.atomic():
+            self._publish_pose(rec)
+            traj = _segments(rec.trajectory_xy_m, 0.03)
+            if len(traj):
+                if self._trajectory is None:
+                    self._trajectory = scene.add_line_segments("/trajectory", traj, (20, 150, 60), thickness=0.04)
+                else:
+                    _set_segments(self._trajectory, traj, (20, 150, 60))
+            plan = _segments(np.zeros((0, 2)) if r is None else r.plan_xy_m, 0.05)
+            if self._plan is None:
+                self._plan = scene.add_line_segments(
+                    "/plan", plan if len(plan) else np.zeros((1, 2, 3), np.float32), (250, 180, 0), thickness=0.035
+                )
+            else:
+                _set_segments(self._plan, plan if len(plan) else np.zeros((1, 2, 3), np.float32), (250, 180, 0))
+            if r is not None and r.target_xy_m is not None:
+                pos = (float(r.target_xy_m[0]), float(r.target_xy_m[1]), 0.15)
+                colour = (230, 30, 40) if r.target_kind == "goal" else (255, 0, 200)
+                if self._target is None:
+                    self._target = scene.add_icosphere("/target", radius=0.12, color=colour, position=pos)
+                else:
+                    self._target.position = pos
+                    self._target.color = colour
+                    self._target.visible = True
+            elif self._target is not None:
+                self._target.visible = False
+            self._publish_images(rec)
+            if with_map:
+                self._publish_map(rec)
+        self.n_published += 1
+
+    def _publish_pose(self, rec: StepRecord) -> None:
+        p = rec.pose
+        self._robot.position = (p.x_m, p.y_m, 0.705)
+        self._robot.visible = True
+        R = camera_rotation(p.yaw_rad, rec.camera_tilt_rad)
+        self._frustum.wxyz = rotation_to_wxyz(R)
+        self._frustum.position = (p.x_m, p.y_m, rec.camera_height_m)
+        self._frustum.fov = math.radians(rec.intrinsics.vfov_deg)
+        self._frustum.aspect = rec.intrinsics.width_px / rec.intrinsics.height_px
+        self._frustum.image = fit_height(rec.rgb, 160)
+        self._frustum.visible = True
+        r = rec.record
+        mode = "" if r is None else f" - {r.mode}: {r.reason}"
+        score = "" if r is None or r.reid_score is None else f" - score {r.reid_score:.1f}"
+        tau = "" if r is None or r.reid_tau is None else f" / tau {r.reid_tau:.1f}"
+        self._status.content = f"**Run {rec.run_id}** - step {rec.step} {rec.action.name}{mode}{score}{tau}"
+
+    def _publish_images(self, rec: StepRecord) -> None:
+        h = self.config.image_height_px
+        self._rgb_img.image = fit_height(rec.rgb, h)
+        self._depth_img.image = fit_height(depth_rgb(rec.depth_m), h)
+        r = rec.record
+        if r is not None:
+            self._match_img.image = match_picture(rec.goal_rgb, rec.rgb, r.matches_goal_xy, r.matches_obs_xy, height_px=h)
+        hist = rec.reid_history
+        if hist:
+            steps = np.array([s for s, _, _ in hist], np.float64)
+            scores = np.array([np.nan if v is None else v for _, v, _ in hist], np.float64)
+            taus = np.array([np.nan if t is None else t for _, _, t in hist], np.float64)
+            self._plot.data = (steps, scores, taus)
+
+    def _publish_map(self, rec: StepRecord) -> None:
+        self._last_map_s = time.monotonic()
+        r = rec.record
+        scene = self.server.scene
+        if r is not None and len(r.goal_points_xyz):
+            pts = np.asarray(r.goal_points_xyz, np.float32).reshape(-1, 3)
+            if self._goal_points is None:
+                self._goal_points = scene.add_point_cloud("/goal/points", pts, (230, 30, 40), point_size=0.06)
+            else:
+                self._goal_points.points = pts
+                self._goal_points.colors = np.tile(np.array([[230, 30, 40]], np.uint8), (len(pts), 1))
+        if r is None or r.map is None:
+            return
+        snap = r.map
+        known = snap.explored | snap.obstacle
+        if not known.any():
+            return
+        ii, jj = np.nonzero(known)
+        i0, i1, j0, j1 = ii.min(), ii.max() + 1, jj.min(), jj.max() + 1
+        rgb = layers_rgb(snap)[i0:i1, j0:j1]
+        alpha = np.where(known[i0:i1, j0:j1], 235, 0).astype(np.uint8)
+        rgba = np.concatenate([rgb, alpha[..., None]], axis=2)[::-1]  # row 0 = highest y = top of the plane
+        res = snap.resolution_m
+        w_m, h_m = (j1 - j0) * res, (i1 - i0) * res
+        centre = (snap.origin_xy_m[0] + j0 * res + w_m / 2, snap.origin_xy_m[1] + i0 * res + h_m / 2, 0.0)
+        if self._occupancy is not None:
+            self._occupancy.remove()
+        self._occupancy = scene.add_image(
+            "/map/occupancy", np.ascontiguousarray(rgba), render_width=w_m, render_height=h_m, position=centre,
+            format="png", cast_shadow=False, receive_shadow=False,
+        )
+        oi, oj = np.nonzero(snap.obstacle)
+        if len(oi):
+            xy = snap.ij_to_xy(np.stack([oi, oj], axis=1)).astype(np.float32)
+            levels = np.array([0.15, 0.6, 1.05], np.float32)
+            step = max(1, int(math.ceil(len(xy) * len(levels) / self.config.max_obstacle_points)))
+            xy = xy[::step]
+            pts = np.concatenate(
+                [np.concatenate([xy, np.full((len(xy), 1), z, np.float32)], axis=1) for z in levels], axis=0
+            )
+            colours = np.tile(np.array([[90, 100, 140]], np.uint8), (len(pts), 1))
+            if self._obstacles is None:
+                self._obstacles = scene.add_point_cloud("/map/obstacles", pts, colours, point_size=0.05)
+            else:
+                self._obstacles.points = pts
+                self._obstacles.colors = colours

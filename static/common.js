@@ -1,0 +1,174 @@
+// Shared helpers of the phone and console pages (plain JS, no build step).
+"use strict";
+
+const imgnav = (() => {
+  // The token: from ?token=... once, then remembered in this browser.
+  const params = new URLSearchParams(window.location.search);
+  if (params.get("token")) {
+    localStorage.setItem("imgnav-token", params.get("token"));
+  }
+  const token = () => localStorage.getItem("imgnav-token") || "";
+
+  function headers() {
+    const h = {};
+    if (token()) h["X-Imgnav-Token"] = token();
+    return h;
+  }
+
+  async function describeError(resp) {
+    let text = `${resp.status} ${resp.statusText}`;
+    try {
+      const body = await resp.json();
+      const d = body.detail;
+      if (d && d.message) text = `${d.message} (${resp.status} ${d.code})`;
+      else if (Array.isArray(d)) text = d.map((e) => `${(e.loc || []).join(".")}: ${e.msg}`).join("; ");
+      else if (typeof d === "string") text = d;
+    } catch (_) { /* not JSON */ }
+    return text;
+  }
+
+  async function getJSON(url) {
+    const resp = await fetch(url, { headers: headers() });
+    if (!resp.ok) throw new Error(await describeError(resp));
+    return resp.json();
+  }
+
+  async function postForm(url, form) {
+    const resp = await fetch(url, { method: "POST", body: form, headers: headers() });
+    if (!resp.ok) throw new Error(await describeError(resp));
+    return resp.json();
+  }
+
+  async function postJSON(url) {
+    const resp = await fetch(url, { method: "POST", headers: headers() });
+    if (!resp.ok) throw new Error(await describeError(resp));
+    return resp.json();
+  }
+
+  function el(tag, attrs = {}, ...children) {
+    const node = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) {
+      if (k === "class") node.className = v;
+      else if (k === "text") node.textContent = v;
+      else if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
+      else node.setAttribute(k, v);
+    }
+    for (const c of children) node.append(c);
+    return node;
+  }
+
+  function badge(text) {
+    return el("span", { class: `badge ${text || ""}`, text: text || "-" });
+  }
+
+  function fmt(v, digits = 2) {
+    if (v === null || v === undefined) return "-";
+    if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toFixed(digits);
+    if (typeof v === "boolean") return v ? "yes" : "no";
+    return String(v);
+  }
+
+  // Follow a server-sent-event stream; returns a function that closes it.
+  function follow(url, onEvent) {
+    const source = new EventSource(url);
+    for (const kind of ["status", "step", "log"]) {
+      source.addEventListener(kind, (ev) => onEvent(JSON.parse(ev.data)));
+    }
+    return () => source.close();
+  }
+
+  function viewerURL(config) {
+    if (!config.viewer) return null;
+    return `${window.location.protocol}//${window.location.hostname}:${config.viewer.port}/`;
+  }
+
+  // The backend choice: a <select> of backends and, for the simulator, home, start and gallery.
+  // Calls onGalleryPick(blob, item) when a gallery image is chosen as the goal photo.
+  class BackendForm {
+    constructor(root, config, onGalleryPick) {
+      this.root = root;
+      this.config = config;
+      this.onGalleryPick = onGalleryPick;
+      this.galleryItem = "";
+      this.sim = null;
+      this.backendSel = el("select", { id: "backend", name: "backend" });
+      for (const b of config.backends) {
+        const o = el("option", { value: b.name, text: b.label + (b.available ? "" : ` (${b.why})`) });
+        if (!b.available && b.name !== "sim") o.disabled = true;
+        this.backendSel.append(o);
+      }
+      if (config.default_backend) this.backendSel.value = config.default_backend;
+      this.simBox = el("div", { id: "sim-options" });
+      root.append(el("label", { for: "backend", text: "Robot" }), this.backendSel, this.simBox);
+      this.backendSel.addEventListener("change", () => this.render());
+    }
+
+    async load() {
+      if (this.config.backends.some((b) => b.name === "sim")) {
+        this.sim = await getJSON("/api/backends/sim");
+      }
+      this.render();
+    }
+
+    render() {
+      this.simBox.replaceChildren();
+      if (this.backendSel.value !== "sim" || !this.sim) return;
+      if (!this.sim.available) {
+        this.simBox.append(el("p", { class: "hint", id: "sim-preparing", text: `Simulator: ${this.sim.why}` }));
+        return;
+      }
+      const homes = this.sim.homes || [];
+      this.homeSel = el("select", { id: "home", name: "home" });
+      for (const h of homes) this.homeSel.append(el("option", { value: h.id, text: h.label }));
+      this.startSel = el("select", { id: "start", name: "start" });
+      this.gallery = el("div", { class: "gallery", id: "gallery" });
+      this.simBox.append(
+        el("label", { for: "home", text: "Home" }), this.homeSel,
+        el("label", { for: "start", text: "Start" }), this.startSel,
+        el("label", { text: "Gallery: tap an object to use its picture as the goal photo" }), this.gallery,
+      );
+      this.homeSel.addEventListener("change", () => this.renderHome());
+      this.renderHome();
+    }
+
+    home() {
+      return (this.sim.homes || []).find((h) => h.id === this.homeSel.value);
+    }
+
+    renderHome() {
+      const home = this.home();
+      this.startSel.replaceChildren();
+      this.gallery.replaceChildren();
+      if (!home) return;
+      for (const s of home.starts) this.startSel.append(el("option", { value: s.id, text: s.label }));
+      for (const g of home.gallery) {
+        const fig = el("figure", { "data-item": g.item, title: g.label },
+          el("img", { src: g.url, alt: g.label, loading: "lazy" }), el("figcaption", { text: g.label }));
+        fig.addEventListener("click", async () => {
+          for (const f of this.gallery.querySelectorAll("figure")) f.classList.remove("selected");
+          fig.classList.add("selected");
+          const blob = await (await fetch(g.url)).blob();
+          this.galleryItem = g.item;
+          this.onGalleryPick(blob, g);
+        });
+        this.gallery.append(fig);
+      }
+    }
+
+    clearGallery() {
+      this.galleryItem = "";
+      if (this.gallery) for (const f of this.gallery.querySelectorAll("figure")) f.classList.remove("selected");
+    }
+
+    fill(form) {
+      form.append("backend", this.backendSel.value);
+      if (this.backendSel.value === "sim" && this.homeSel) {
+        form.append("home", this.homeSel.value);
+        form.append("start", this.startSel.value);
+        if (this.galleryItem) form.append("gallery_item", this.galleryItem);
+      }
+    }
+  }
+
+  return { token, getJSON, postForm, postJSON, el, badge, fmt, follow, viewerURL, BackendForm, describeError };
+})();

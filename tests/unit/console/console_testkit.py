@@ -1,0 +1,159 @@
+"""Small hand-built inputs for the console's unit tests: a scripted backend and agent
+that exercise the run manager's loop without the simulator (integration tests use
+the real PyBullet simulator)."""
+
+from __future__ import annotations
+
+import io
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+from PIL import Image
+
+from agent.types import (
+    SIM_INTRINSICS,
+    Action,
+    AgentRecord,
+    BackendError,
+    MapSnapshot,
+    Observation,
+    Pose2D,
+)
+from console.session import Outcome, OptionsError, ResolvedRun
+
+
+def textured_rgb(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    base = rng.integers(0, 255, size=(h // 8 + 1, w // 8 + 1, 3), dtype=np.uint8)
+    return np.kron(base, np.ones((8, 8, 1), np.uint8))[:h, :w].copy()
+
+
+def encode(rgb: np.ndarray, fmt: str, **kw: Any) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format=fmt, **kw)
+    return buf.getvalue()
+
+
+class ScriptedBackend:
+    """Turns left every step; poses advance; ``fail_at`` raises a BackendError."""
+
+    def __init__(self, goal: np.ndarray, fail_at: int | None = None, gate: threading.Event | None = None) -> None:
+        self.goal = goal
+        self.pose = Pose2D()
+        self.step = 0
+        self.applied: list[Action] = []
+        self.closed = False
+        self.fail_at = fail_at
+        self.gate = gate
+
+    def _obs(self) -> Observation:
+        h, w = SIM_INTRINSICS.height_px, SIM_INTRINSICS.width_px
+        rgb = np.zeros((h, w, 3), np.uint8)
+        rgb[:, :, 1] = (self.step * 20) % 255
+        depth = np.full((h, w), 2.0, np.float32)
+        return Observation(rgb, depth, self.pose, SIM_INTRINSICS, self.goal, step=self.step)
+
+    def reset(self) -> Observation:
+        return self._obs()
+
+    def observe(self) -> Observation:
+        return self._obs()
+
+    def apply(self, action: Action) -> None:
+        if self.gate is not None:
+            self.gate.wait(10.0)
+        if self.fail_at is not None and self.step == self.fail_at:
+            raise BackendError("disconnected", "no state for 1.2 s")
+        self.applied.append(action)
+        self.step += 1
+        if action == Action.TURN_LEFT:
+            self.pose = Pose2D(self.pose.x_m, self.pose.y_m, self.pose.yaw_rad + 0.5)
+        elif action == Action.MOVE_FORWARD:
+            self.pose = self.pose.compose(Pose2D(0.25, 0.0, 0.0))
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class ScriptedAgent:
+    """Forward, left, forward, ... and STOP after ``stop_after`` actions."""
+
+    def __init__(self, stop_after: int) -> None:
+        self.stop_after = stop_after
+        self.n = 0
+        self._record: AgentRecord | None = None
+
+    def reset(self, goal_image: np.ndarray) -> None:
+        self.n = 0
+
+    def act(self, obs: Observation) -> Action:
+        action = Action.STOP if self.n >= self.stop_after else (Action.MOVE_FORWARD if self.n % 2 == 0 else Action.TURN_LEFT)
+        shape = (40, 40)
+        explored = np.zeros(shape, bool)
+        explored[10:30, 10:30] = True
+        obstacle = np.zeros(shape, bool)
+        obstacle[10, 10:30] = True
+        frontier = np.zeros(shape, bool)
+        frontier[29, 12:28] = True
+        snap = MapSnapshot(0.05, (-1.0, -1.0), obstacle, explored, np.zeros(shape, bool), np.zeros(shape, bool),
+                           np.zeros(shape, bool), frontier)
+        self._record = AgentRecord(
+            step=obs.step, action=action, pose=obs.pose, mode="explore", reason=f"scripted step {self.n}",
+            reid_score=float(self.n), reid_tau=10.0, map=snap,
+            matches_goal_xy=np.array([[5, 5], [20, 20]], np.float32), matches_obs_xy=np.array([[50, 60], [100, 200]], np.float32),
+            goal_points_xyz=np.array([[0.3, 0.2, 0.5]], np.float32), target_xy_m=(0.2, 0.2), target_kind="frontier",
+            plan_xy_m=np.array([[0, 0], [0.1, 0.1], [0.2, 0.2]], np.float32), timings_ms={"total": 1.0},
+        )
+        self.n += 1
+        return action
+
+    @property
+    def last_record(self) -> AgentRecord | None:
+        return self._record
+
+
+@dataclass
+class ScriptedSession:
+    backend: ScriptedBackend
+    agent: ScriptedAgent
+    agent_config: Mapping[str, Any] = field(default_factory=lambda: {"name": "scripted"})
+
+    def outcome(self, last_action: Action | None, reason: str) -> Outcome:
+        if reason == "operator":
+            return Outcome("stopped", "stopped by the operator")
+        return Outcome("unscored", f"ended by {reason}; target unknown")
+
+    def close(self) -> None:
+        self.backend.close()
+
+
+class ScriptedProvider:
+    """A BackendProvider for unit tests (the product's providers live in console.providers)."""
+
+    name = "scripted"
+    label = "Scripted test backend"
+
+    def __init__(self, stop_after: int = 5, fail_at: int | None = None) -> None:
+        self.stop_after = stop_after
+        self.fail_at = fail_at
+        self.gate: threading.Event | None = None
+        self.sessions: list[ScriptedSession] = []
+
+    def available(self) -> tuple[bool, str]:
+        return True, ""
+
+    def describe(self) -> Mapping[str, Any]:
+        return {}
+
+    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        if "home" in options and options["home"] != "h0":
+            raise OptionsError(f"no home {options['home']!r}")
+        max_steps = int(options.get("max_steps", 1000))
+        return ResolvedRun("scripted", dict(options), None, max_steps)
+
+    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> ScriptedSession:
+        session = ScriptedSession(ScriptedBackend(goal_rgb, self.fail_at, self.gate), ScriptedAgent(self.stop_after))
+        self.sessions.append(session)
+        return session

@@ -1,0 +1,68 @@
+"""The viser viewer: camera pose math, publishing a record, throttled offers."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from agent.types import Action, Pose2D
+from console.session import Outcome, StepRecord
+from console.viewer import Viewer, ViewerConfig, camera_rotation, rotation_to_wxyz
+from console_testkit import ScriptedAgent, ScriptedBackend, textured_rgb
+
+
+def test_camera_rotation_opencv_axes() -> None:
+    R = camera_rotation(0.0, 0.0)
+    assert np.allclose(R[:, 2], [1, 0, 0])  # optical axis along the heading
+    assert np.allclose(R[:, 0], [0, -1, 0])  # image x to the robot's right
+    assert np.allclose(R[:, 1], [0, 0, -1])  # image y down
+    R = camera_rotation(math.pi / 2, 0.3)
+    assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert R[2, 2] < 0  # tilted down
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5, math.pi])
+def test_quaternion_round_trip(yaw: float) -> None:
+    R = camera_rotation(yaw, 0.2)
+    w, x, y, z = rotation_to_wxyz(R)
+    Rq = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    assert np.allclose(Rq, R, atol=1e-9)
+
+
+def records(n: int) -> list[StepRecord]:
+    goal = textured_rgb(64, 64)
+    backend, agent = ScriptedBackend(goal), ScriptedAgent(stop_after=n)
+    obs = backend.reset()
+    out, traj = [], []
+    for step in range(n):
+        action = agent.act(obs)
+        traj.append((obs.pose.x_m, obs.pose.y_m))
+        out.append(StepRecord("abcdefabcdef", step, time.time(), action, obs.pose, obs.rgb, obs.depth_m, obs.intrinsics,
+                              obs.camera_height_m, obs.camera_tilt_rad, goal, agent.last_record, np.array(traj),
+                              tuple((i, float(i), 10.0) for i in range(step + 1))))
+        backend.apply(action)
+        obs = backend.observe()
+    return out
+
+
+def test_viewer_publishes_and_throttles() -> None:
+    viewer = Viewer(ViewerConfig(port=0, pose_hz=5.0, map_hz=1.0))
+    try:
+        assert viewer.port > 0
+        recs = records(12)
+        viewer.run_started("abcdefabcdef", recs[0].goal_rgb, {"backend": "scripted"})
+        viewer.publish(recs[0], with_map=True)  # direct publish: the full path, map included
+        assert viewer.n_published == 1
+        for rec in recs:  # offers return at once; the viewer thread keeps only the newest
+            viewer.offer(rec)
+        viewer.run_ended("abcdefabcdef", "finished", Outcome("unscored", "test", {"spl": 0.5}))
+        assert 2 <= viewer.n_published <= 1 + len(recs)
+    finally:
+        viewer.close()
