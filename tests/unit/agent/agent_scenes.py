@@ -19,7 +19,8 @@ def render_depth(
     camera_height_m: float = CAMERA_HEIGHT_M,
     tilt_rad: float = 0.0,
     far_m: float = 50.0,
-) -> np.ndarray:
+    return_ids: bool = False,
+):
     """Depth (H, W) float32 (z along the optical axis) of a floor plus axis-aligned boxes;
     0 (no reading) where a ray hits nothing within ``far_m``.
 
@@ -34,11 +35,12 @@ def render_depth(
     dz = up
     o = np.array([pose.x_m, pose.y_m, camera_height_m])
     t = np.full(dx.shape, far_m, np.float64)
+    ids = np.full(dx.shape, -1, np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):
         t_floor = np.where(dz < 0, -o[2] / dz, np.inf)
         t = np.minimum(t, t_floor)
         d = np.stack([dx, dy, dz], axis=1).astype(np.float64)
-        for x0, y0, x1, y1, hz in boxes:
+        for k, (x0, y0, x1, y1, hz) in enumerate(boxes):
             lo = np.array([x0, y0, 0.0]) - o
             hi = np.array([x1, y1, hz]) - o
             t1 = lo / d
@@ -46,9 +48,14 @@ def render_depth(
             tmin = np.nanmax(np.minimum(t1, t2), axis=1)
             tmax = np.nanmin(np.maximum(t1, t2), axis=1)
             hit = (tmax >= tmin) & (tmax > 0)
-            t = np.where(hit & (tmin > 0), np.minimum(t, tmin), t)
+            closer = hit & (tmin > 0) & (tmin < t)
+            t = np.where(closer, tmin, t)
+            ids = np.where(closer, k, ids)
     t = np.where(t >= far_m, 0.0, t)
-    return t.reshape(h, w).astype(np.float32)
+    depth = t.reshape(h, w).astype(np.float32)
+    if return_ids:
+        return depth, ids.reshape(h, w)
+    return depth
 
 
 def room_walls(x0: float, y0: float, x1: float, y1: float, height: float = 2.5, thick: float = 0.1):
@@ -68,3 +75,59 @@ def observation(boxes, pose: Pose2D, intrinsics: Intrinsics = SMALL_INTRINSICS, 
     if goal is None:
         goal = np.zeros((64, 64, 3), np.uint8)
     return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=intrinsics, goal_image=goal, step=step)
+
+
+class BoxWorld:
+    """A tiny simulator for policy tests: box obstacles, exact depth, the task's discrete actions,
+    a cylinder robot that does not slide (a blocked forward move leaves it in place)."""
+
+    def __init__(self, boxes, start: Pose2D, goal_box: int, radius_m: float = 0.17,
+                 intrinsics: Intrinsics = SMALL_INTRINSICS) -> None:
+        self.boxes = list(boxes)
+        self.start = start
+        self.pose = start  # world frame
+        self.goal_box = goal_box
+        self.radius_m = radius_m
+        self.intrinsics = intrinsics
+        self.step = 0
+        self._ids = None
+
+    def collides(self, x: float, y: float) -> bool:
+        for x0, y0, x1, y1, hz in self.boxes:
+            if hz <= 0.0:
+                continue
+            cx, cy = min(max(x, x0), x1), min(max(y, y0), y1)
+            if math.hypot(x - cx, y - cy) < self.radius_m:
+                return True
+        return False
+
+    def observe(self) -> Observation:
+        depth, ids = render_depth(self.boxes, self.pose, self.intrinsics, return_ids=True)
+        self._ids = ids
+        rgb = np.zeros((self.intrinsics.height_px, self.intrinsics.width_px, 3), np.uint8)
+        return Observation(rgb=rgb, depth_m=depth, pose=self.pose.relative_to(self.start),
+                           intrinsics=self.intrinsics, goal_image=np.zeros((64, 64, 3), np.uint8), step=self.step)
+
+    def goal_mask(self, obs: Observation) -> np.ndarray:
+        return self._ids == self.goal_box
+
+    def goal_visible(self, obs: Observation) -> bool:
+        return int(np.count_nonzero(self._ids == self.goal_box)) >= 20
+
+    def apply(self, action) -> None:
+        from agent.types import Action
+        self.step += 1
+        p = self.pose
+        if action == Action.MOVE_FORWARD:
+            nx, ny = p.x_m + 0.25 * math.cos(p.yaw_rad), p.y_m + 0.25 * math.sin(p.yaw_rad)
+            if not any(self.collides(p.x_m + f * (nx - p.x_m), p.y_m + f * (ny - p.y_m)) for f in (0.25, 0.5, 0.75, 1.0)):
+                self.pose = Pose2D(nx, ny, p.yaw_rad)
+        elif action == Action.TURN_LEFT:
+            self.pose = p.compose(Pose2D(0, 0, math.radians(30)))
+        elif action == Action.TURN_RIGHT:
+            self.pose = p.compose(Pose2D(0, 0, -math.radians(30)))
+
+    def distance_to_goal(self) -> float:
+        x0, y0, x1, y1, _ = self.boxes[self.goal_box]
+        cx, cy = min(max(self.pose.x_m, x0), x1), min(max(self.pose.y_m, y0), y1)
+        return math.hypot(self.pose.x_m - cx, self.pose.y_m - cy)

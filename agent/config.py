@@ -1,0 +1,70 @@
+"""The agent's configuration: one frozen dataclass per module, composed (DESIGN section 7).
+
+Deployments: ``agent/configs/sim.yaml`` and ``agent/configs/stretch.yaml``; loading is
+strict (``agent.configio``): an unknown key is an error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+from agent.configio import from_dict, load_yaml
+from agent.frontier import FrontierConfig
+from agent.localisation import LocalisationConfig
+from agent.mapping import MappingConfig
+from agent.planner import PlannerConfig
+from agent.reid.identifier import ReIDConfig
+from agent.segmentation import SegmentationConfig
+
+
+@dataclass(frozen=True, slots=True)
+class PolicyConfig:
+    # where detections come from: the matcher (the paper) or an injected oracle (ablation)
+    reid_source: Literal["matcher", "oracle"] = "matcher"
+    # where goal points come from: matched keypoints inside the goal-image mask (the paper),
+    # or the injected ground-truth egocentric instance mask (the "oracle" localisation ablation)
+    localisation_source: Literal["goal_mask", "oracle"] = "goal_mask"
+    look_around_turns: int = 12  # a full turn at the start (12 x 30 deg); 0 disables
+    stop_radius_m: float = 0.8  # stop when the robot centre is this close to a goal cell (success: 1.0 m)
+    facing_tolerance_deg: float = 16.0  # and the goal is within this of the heading
+    rank_candidates_by: Literal["points", "score"] = "points"  # the paper keeps the largest cluster
+    verify: bool = True  # confirm a candidate by a re-match at close range before stopping
+    verify_range_m: float = 2.0  # a detection from this close confirms the candidate
+    verify_scan_steps: int = 4  # turns (left, right, right, left) looking for a confirmation
+    reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
+    unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
+    collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
+    snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
+
+
+@dataclass(frozen=True, slots=True)
+class AgentConfig:
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    reid: ReIDConfig = field(default_factory=ReIDConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    localisation: LocalisationConfig = field(default_factory=LocalisationConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+
+
+DEPLOYMENTS = ("sim", "stretch")
+
+
+def deployment_path(name: str) -> Path:
+    return Path(str(resources.files("agent").joinpath("configs", f"{name}.yaml")))
+
+
+def load_agent_config(name_or_path: str | Path = "sim") -> AgentConfig:
+    """A deployment name (``sim``, ``stretch``) or a YAML path -> ``AgentConfig`` (strict)."""
+    p = Path(name_or_path)
+    if str(name_or_path) in DEPLOYMENTS:
+        p = deployment_path(str(name_or_path))
+    return load_yaml(AgentConfig, p)
+
+
+def agent_config_from_dict(data: dict) -> AgentConfig:
+    return from_dict(AgentConfig, data, where="agent config")

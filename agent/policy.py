@@ -1,0 +1,294 @@
+"""The Mod-IIN agent (Krantz et al., ICCV 2023): frontier exploration, keypoint re-identification,
+goal localisation by projected matches, fast-marching navigation (DESIGN section 2).
+
+Per step: map the depth frame; re-identify (score the frame against the goal image); on a
+detection, lift the matched goal keypoints into 3D goal points; then either navigate to the
+goal candidate (largest cluster of goal points) or to the nearest frontier.
+
+Beyond the paper (DESIGN section 2, end), each configurable in ``PolicyConfig``:
+
+* a full look-around at the start (``look_around_turns``);
+* verification: a candidate is stopped at only after a detection from within
+  ``verify_range_m`` of it; at the stop point without one, the agent scans left and right,
+  and rejects (blacklists) the candidate when nothing confirms it;
+* rejected and unreachable candidates are blacklisted on the map, so their points and
+  later points there are ignored and exploration resumes.
+
+Oracle ablations are injected callables (the agent never imports sim/):
+``oracle_reid(obs) -> bool`` (goal visible), ``oracle_ego_mask(obs) -> (H, W) bool``
+(ground-truth egocentric instance mask), ``goal_mask_fn(goal_image) -> (h, w) bool``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Callable
+
+import numpy as np
+
+from agent.config import AgentConfig
+from agent.frontier import FrontierExplorer, frontier_mask
+from agent.localisation import Candidate, GoalLocaliser
+from agent.mapping import GridMap
+from agent.planner import FMMPlanner, Plan, PlanError, region_within
+from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
+from agent.reid.base import Matcher
+from agent.segmentation import GoalMaskFn, GoalSegmenter
+from agent.types import Action, AgentRecord, Observation, Pose2D, wrap_angle
+
+log = logging.getLogger(__name__)
+
+OracleReID = Callable[[Observation], bool]
+OracleEgoMask = Callable[[Observation], np.ndarray]
+
+_EMPTY2 = np.zeros((0, 2), np.float32)
+_EMPTY3 = np.zeros((0, 3), np.float32)
+_SCAN = (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.TURN_LEFT)
+
+
+class ModIINAgent:
+    """Implements ``agent.types.Agent``."""
+
+    def __init__(
+        self,
+        config: AgentConfig = AgentConfig(),
+        *,
+        matcher: Matcher | None = None,
+        oracle_reid: OracleReID | None = None,
+        oracle_ego_mask: OracleEgoMask | None = None,
+        goal_mask_fn: GoalMaskFn | None = None,
+    ) -> None:
+        pc = config.policy
+        if pc.reid_source == "oracle" and oracle_reid is None:
+            raise ValueError("policy.reid_source 'oracle' needs an injected oracle_reid callable")
+        if pc.localisation_source == "oracle" and oracle_ego_mask is None:
+            raise ValueError("policy.localisation_source 'oracle' needs an injected oracle_ego_mask callable")
+        self.config = config
+        self.oracle_reid = oracle_reid
+        self.oracle_ego_mask = oracle_ego_mask
+        needs_matcher = pc.reid_source == "matcher" or pc.localisation_source == "goal_mask"
+        self.tau = resolve_tau(config.reid) if pc.reid_source == "matcher" else None
+        self.reid = ReIdentifier(config.reid, matcher) if needs_matcher else None
+        self.segmenter = GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
+        self.planner = FMMPlanner(config.planner)
+        self._record: AgentRecord | None = None
+        self._goal_image: np.ndarray | None = None
+
+    # --- Agent protocol -------------------------------------------------------------
+
+    @property
+    def last_record(self) -> AgentRecord | None:
+        return self._record
+
+    def reset(self, goal_image: np.ndarray) -> None:
+        self._goal_image = goal_image
+        self.grid = GridMap(self.config.mapping)
+        self.explorer = FrontierExplorer(self.config.frontier)
+        self.localiser = GoalLocaliser(self.config.localisation)
+        if self.reid is not None:
+            self.reid.set_goal(goal_image)
+        self.goal_mask = self.segmenter.mask(goal_image) if self.segmenter is not None else None
+        self._prev_pose: Pose2D | None = None
+        self._prev_action: Action | None = None
+        self._steps = 0
+        self._confirmed_xy: list[tuple[float, float]] = []  # close-range detections (verification)
+        self._scan_left: int = -1  # >=0 while scanning at a stop point
+        self._unreachable_goal = 0
+        self._record = None
+
+    def act(self, obs: Observation) -> Action:
+        if self._goal_image is None:
+            raise RuntimeError("reset(goal_image) first")
+        t_start = time.perf_counter()
+        timings: dict[str, float] = {}
+        pc = self.config.policy
+
+        # 1. mapping (with collision marks for forward moves that did not move the robot)
+        t = time.perf_counter()
+        if self._prev_pose is not None:
+            if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
+                self.grid.mark_collision(self._prev_pose)
+            self.grid.mark_visited((self._prev_pose.x_m, self._prev_pose.y_m), (obs.pose.x_m, obs.pose.y_m))
+        else:
+            self.grid.mark_visited((obs.pose.x_m, obs.pose.y_m), (obs.pose.x_m, obs.pose.y_m))
+        self.grid.update(obs)
+        timings["mapping"] = _ms(t)
+
+        # 2. re-identification
+        t = time.perf_counter()
+        result = self.reid.compare(obs.rgb) if self.reid is not None else None
+        if pc.reid_source == "oracle":
+            assert self.oracle_reid is not None
+            detected = bool(self.oracle_reid(obs))
+            score = 1.0 if detected else 0.0
+        else:
+            assert result is not None and self.tau is not None
+            score = result.score
+            detected = score >= self.tau
+        timings["reid"] = _ms(t)
+
+        # 3. localisation
+        t = time.perf_counter()
+        added = _EMPTY3
+        if detected:
+            added = self._localise(obs, result, score)
+            if len(added):
+                c = added[:, :2].mean(axis=0)
+                if math.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m) <= pc.verify_range_m:
+                    self._confirmed_xy.append((float(c[0]), float(c[1])))
+        candidates = self.localiser.candidates(self.grid)
+        timings["localisation"] = _ms(t)
+
+        # 4. decision and planning
+        t = time.perf_counter()
+        action, mode, reason, plan, target_kind, error, cand = self._decide(obs, candidates)
+        timings["planning"] = _ms(t)
+        timings["total"] = _ms(t_start)
+
+        self._prev_pose, self._prev_action = obs.pose, action
+        self._steps += 1
+        snap = None
+        if pc.snapshot_every > 0 and (obs.step % pc.snapshot_every == 0 or action == Action.STOP):
+            snap = self.grid.snapshot(frontier_mask(self.grid, self.config.frontier.min_cluster_cells))
+        self._record = AgentRecord(
+            step=obs.step,
+            action=action,
+            pose=obs.pose,
+            mode=mode,
+            reason=reason,
+            reid_score=score,
+            reid_tau=self.tau,
+            goal_detected=detected,
+            matches_goal_xy=result.goal_xy.astype(np.float32) if result is not None else _EMPTY2,
+            matches_obs_xy=result.obs_xy.astype(np.float32) if result is not None else _EMPTY2,
+            goal_points_xyz=cand.points_xyz if cand is not None else _EMPTY3,
+            target_xy_m=plan.target_xy_m if plan is not None else None,
+            target_kind=target_kind,
+            plan_xy_m=plan.path_xy_m if plan is not None else _EMPTY2,
+            map=snap,
+            timings_ms=timings,
+            planner_error=error,
+        )
+        return action
+
+    # --- parts ---------------------------------------------------------------------
+
+    def _localise(self, obs: Observation, result: ReIDResult | None, score: float) -> np.ndarray:
+        if self.config.policy.localisation_source == "oracle":
+            assert self.oracle_ego_mask is not None
+            return self.localiser.add_mask_pixels(obs, np.asarray(self.oracle_ego_mask(obs), bool), score)
+        assert result is not None and self.goal_mask is not None
+        return self.localiser.add_matches(obs, result.goal_xy, result.obs_xy, self.goal_mask, score)
+
+    def _pick(self, candidates: list[Candidate]) -> Candidate | None:
+        if not candidates:
+            return None
+        if self.config.policy.rank_candidates_by == "score":
+            return max(candidates, key=lambda c: (c.max_score, c.n_points))
+        return candidates[0]
+
+    def _confirmed(self, cand: Candidate) -> bool:
+        if not self.config.policy.verify:
+            return True
+        if not self._confirmed_xy:
+            return False
+        cells = self.grid.ij_to_xy(cand.cells_ij)
+        conf = np.asarray(self._confirmed_xy)
+        d = np.hypot(cells[:, None, 0] - conf[None, :, 0], cells[:, None, 1] - conf[None, :, 1])
+        return bool(d.min() <= self.config.localisation.cluster_radius_m)
+
+    def _reject(self, cand: Candidate, why: str) -> None:
+        log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
+        L = self.grid.layers
+        rej = np.zeros(self.grid.shape, bool)
+        ij = cand.cells_ij[self.grid.in_bounds(cand.cells_ij)]
+        rej[ij[:, 0], ij[:, 1]] = True
+        L.blacklist |= region_within(rej, self.config.policy.reject_radius_m, self.grid.resolution_m)
+        self._scan_left = -1
+        self._unreachable_goal = 0
+
+    def _decide(self, obs: Observation, candidates: list[Candidate]):
+        """-> (action, mode, reason, plan, target_kind, planner_error, candidate)"""
+        pc = self.config.policy
+        cand = self._pick(candidates)
+        if cand is None and self._steps < pc.look_around_turns:
+            return Action.TURN_LEFT, "look_around", f"initial look-around {self._steps + 1}/{pc.look_around_turns}", None, None, None, None
+        if cand is not None:
+            self.grid.set_goal_cells(cand.cells_ij)
+            out = self._approach(obs, cand)
+            if out is not None:
+                return (*out, cand)
+            cands = self.localiser.candidates(self.grid)  # the candidate was rejected
+            self.grid.set_goal_cells(np.zeros((0, 2), np.int64))
+            if cands:
+                return self._decide(obs, cands)
+        else:
+            self.grid.set_goal_cells(np.zeros((0, 2), np.int64))
+        return (*self._explore(obs), None)
+
+    def _approach(self, obs: Observation, cand: Candidate):
+        pc = self.config.policy
+        grid, pose = self.grid, obs.pose
+        region = region_within(grid.layers.goal, pc.stop_radius_m, grid.resolution_m)
+        agent_ij = grid.cell_of(pose)
+        if region[agent_ij]:
+            goal_xy = grid.ij_to_xy(cand.cells_ij)
+            k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
+            bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
+            confirmed = self._confirmed(cand)
+            if self._scan_left >= 0 and not confirmed:
+                if self._scan_left >= len(_SCAN) or self._scan_left >= pc.verify_scan_steps:
+                    self._reject(cand, "no close-range re-identification")
+                    return None
+                a = _SCAN[self._scan_left]
+                self._scan_left += 1
+                return a, "verify", "scanning for a close-range match", None, "goal", None
+            err = wrap_angle(bearing - pose.yaw_rad)
+            if abs(err) > math.radians(pc.facing_tolerance_deg):
+                a = Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT
+                return a, "approach", "at the goal: turning to face it", None, "goal", None
+            if confirmed:
+                return Action.STOP, "stopped", "within stop radius, facing the goal, re-identified at close range", None, "goal", None
+            self._scan_left = 0
+            return self._approach(obs, cand)
+        self._scan_left = -1
+        field = self.planner.distance_field(grid, pose, extra_targets=region)
+        try:
+            plan = self.planner.plan(grid, field, pose, region)
+        except PlanError as exc:
+            self._unreachable_goal += 1
+            if self._unreachable_goal >= pc.unreachable_goal_steps:
+                self._reject(cand, f"unreachable for {self._unreachable_goal} steps")
+                return None
+            # keep looking around: the map may open a way (a new view, a cleared collision)
+            return Action.TURN_LEFT, "approach", "goal not reachable yet", None, "goal", f"{exc.reason}: {exc}"
+        self._unreachable_goal = 0
+        return plan.action, "approach", "navigating to the goal candidate", plan, "goal", None
+
+    def _explore(self, obs: Observation):
+        grid, pose = self.grid, obs.pose
+        front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
+        field = self.planner.distance_field(grid, pose)
+        error = None
+        for _ in range(3):
+            choice = self.explorer.choose(grid, field, front)
+            if choice is None:
+                break
+            target = np.zeros(grid.shape, bool)
+            target[choice.target_ij] = True
+            try:
+                plan: Plan = self.planner.plan(grid, field, pose, target)
+            except PlanError as exc:
+                error = f"{exc.reason}: {exc}"
+                self.explorer.blacklist_target(grid, exc.reason)
+                front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
+                continue
+            return plan.action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
+        # Nothing left to explore and no goal: a deliberate stop, reported as such.
+        return Action.STOP, "exhausted", "no reachable frontier and no goal candidate", None, None, error or "no_frontier"
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3

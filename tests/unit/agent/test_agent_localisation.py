@@ -1,0 +1,77 @@
+import numpy as np
+
+from agent.localisation import GoalLocaliser, LocalisationConfig
+from agent.mapping import GridMap
+from agent.segmentation import GoalSegmenter, SegmentationConfig, crop_mask, grabcut_mask
+from agent.types import Pose2D
+from agent_scenes import SMALL_INTRINSICS, render_depth, room_walls
+from agent.types import Observation
+
+GOAL_BOX = (3.0, -0.3, 3.6, 0.3, 0.8)
+BOXES = room_walls(-1.0, -2.0, 6.0, 2.0) + [GOAL_BOX]
+
+
+def obs_and_ids(pose=Pose2D()):
+    depth, ids = render_depth(BOXES, pose, return_ids=True)
+    rgb = np.zeros(depth.shape + (3,), np.uint8)
+    return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=SMALL_INTRINSICS,
+                       goal_image=np.zeros((64, 64, 3), np.uint8)), ids
+
+
+def test_matches_on_the_object_become_goal_points_and_outliers_are_clustered_away():
+    obs, ids = obs_and_ids()
+    on_box = np.argwhere(ids == len(BOXES) - 1)[:, ::-1].astype(np.float32)  # (x, y)
+    on_wall = np.argwhere(ids == 3)[:, ::-1].astype(np.float32)  # the east wall at x = 6
+    rng = np.random.default_rng(0)
+    obs_xy = np.vstack([on_box[rng.choice(len(on_box), 30)], on_wall[rng.choice(len(on_wall), 5)]])
+    goal_mask = np.zeros((100, 100), bool)
+    goal_mask[20:80, 20:80] = True
+    goal_xy = np.vstack([rng.uniform(25, 75, (35, 2))]).astype(np.float32)
+    goal_xy[-3:] = [5, 5]  # three matches off the object in the goal image are ignored
+    loc = GoalLocaliser(LocalisationConfig(depth_window_px=0))
+    added = loc.add_matches(obs, goal_xy, obs_xy, goal_mask, score=20.0)
+    assert len(added) == 32
+    grid = GridMap()
+    cands = loc.candidates(grid)
+    assert len(cands) == 2
+    best = cands[0]
+    assert best.n_points == 30
+    assert 2.95 <= best.centroid_xy_m[0] <= 3.65 and abs(best.centroid_xy_m[1]) < 0.35
+    assert np.all((best.points_xyz[:, 0] > 2.95) & (best.points_xyz[:, 0] < 3.65))  # on the box
+    assert cands[1].n_points == 2 and cands[1].centroid_xy_m[0] > 5.9
+
+
+def test_blacklisted_cells_drop_points_cell_by_cell():
+    obs, ids = obs_and_ids()
+    loc = GoalLocaliser()
+    loc.add_mask_pixels(obs, ids == len(BOXES) - 1, score=1.0)
+    grid = GridMap()
+    (cand,) = loc.candidates(grid)
+    # blacklist only the left half of the candidate's cells: the rest survives
+    left = cand.cells_ij[cand.cells_ij[:, 0] < np.median(cand.cells_ij[:, 0])]
+    grid.layers.blacklist[left[:, 0], left[:, 1]] = True
+    (rest,) = loc.candidates(grid)
+    assert 0 < rest.n_points < cand.n_points
+    assert not grid.layers.blacklist[rest.cells_ij[:, 0], rest.cells_ij[:, 1]].any()
+
+
+def test_crop_mask_geometry():
+    m = crop_mask(512, 512)
+    ys, xs = np.nonzero(m)
+    assert xs.min() == 170 and xs.max() == 340 and ys.min() == 170 and ys.max() == 447
+
+
+def test_grabcut_segments_the_central_object():
+    rng = np.random.default_rng(1)
+    img = (rng.integers(0, 40, (200, 200, 3)) + np.array([40, 120, 40])).astype(np.uint8)  # green clutter
+    yy, xx = np.mgrid[0:200, 0:200]
+    obj = (xx - 100) ** 2 / 50**2 + (yy - 110) ** 2 / 40**2 <= 1.0
+    img[obj] = (rng.integers(0, 40, (int(obj.sum()), 3)) + np.array([160, 40, 120])).astype(np.uint8)
+    m = grabcut_mask(img)
+    iou = (m & obj).sum() / (m | obj).sum()
+    assert iou > 0.8
+
+
+def test_oracle_goal_mask_is_injected():
+    seg = GoalSegmenter(SegmentationConfig(source="oracle"), oracle=lambda img: np.ones(img.shape[:2], bool))
+    assert seg.mask(np.zeros((10, 12, 3), np.uint8)).all()

@@ -1,0 +1,142 @@
+import math
+
+import numpy as np
+import pytest
+
+from agent.config import AgentConfig, PolicyConfig, load_agent_config
+from agent.configio import ConfigError, from_dict
+from agent.policy import ModIINAgent
+from agent.reid import Features, Matches
+from agent.reid.identifier import ReIDConfig
+from agent.types import Action, Agent, Pose2D
+from agent_scenes import BoxWorld, room_walls
+
+
+def two_rooms():
+    """Room A (x -3..1) and room B (x 1..5), y -2..2, joined by a 0.9 m door at y in [-0.45, 0.45];
+    the goal (a 0.6 m cube) stands in room B's far corner, hidden from the start."""
+    walls = room_walls(-3.0, -2.0, 5.0, 2.0)
+    walls += [(1.0, -2.0, 1.1, -0.45, 2.5), (1.0, 0.45, 1.1, 2.0, 2.5)]
+    goal = (4.0, 1.0, 4.6, 1.6, 0.6)
+    decoy = (-2.6, 1.2, -2.0, 1.8, 0.6)
+    boxes = walls + [goal, decoy]
+    return boxes, len(walls), len(walls) + 1
+
+
+class NoMatcher:
+    """A matcher that never matches (re-ID is the oracle in these tests)."""
+    name = "none"
+
+    def extract(self, rgb, max_keypoints):
+        return Features(np.zeros((0, 2), np.float32), None, (rgb.shape[1], rgb.shape[0]))
+
+    def match(self, goal, obs):
+        return Matches.empty()
+
+
+def run(agent, world, max_steps=300):
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    for _ in range(max_steps):
+        action = agent.act(obs)
+        rec = agent.last_record
+        assert rec is not None and rec.action == action
+        world.apply(action)
+        if action == Action.STOP:
+            return rec
+        obs = world.observe()
+    return agent.last_record
+
+
+def oracle_config(**policy):
+    pol = dict(reid_source="oracle", localisation_source="oracle")
+    pol.update(policy)
+    return AgentConfig(policy=PolicyConfig(**pol))
+
+
+def test_oracle_agent_finds_the_goal_in_the_other_room():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    agent = ModIINAgent(oracle_config(), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+    assert isinstance(agent, Agent)
+    rec = run(agent, world)
+    assert rec.action == Action.STOP and rec.mode == "stopped", (rec.mode, rec.reason)
+    assert world.distance_to_goal() < 1.0
+    assert len(rec.goal_points_xyz) > 0
+    assert set(rec.timings_ms) >= {"mapping", "reid", "localisation", "planning", "total"}
+    assert rec.map is not None and rec.map.goal.any()
+
+
+def test_false_positive_is_rejected_after_close_range_check():
+    boxes, goal, decoy = two_rooms()
+    world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
+    seen_decoy = {"n": 0}
+
+    def reid(obs):
+        # a re-identifier that fires on the decoy from afar (a false positive) but not up close
+        ids = world._ids
+        if np.count_nonzero(ids == decoy) >= 20 and world.pose.distance_to(Pose2D(-2.3, 1.5)) > 2.6:
+            seen_decoy["n"] += 1
+            return True
+        return world.goal_visible(obs)
+
+    def mask(obs):
+        m = world._ids == decoy
+        return m if m.any() and not world.goal_visible(obs) else world.goal_mask(obs)
+
+    agent = ModIINAgent(oracle_config(), oracle_reid=reid, oracle_ego_mask=mask)
+    rec = run(agent, world, max_steps=400)
+    assert seen_decoy["n"] > 0
+    assert rec.action == Action.STOP and world.distance_to_goal() < 1.0, (rec.mode, rec.reason, world.pose)
+
+
+def test_without_verification_the_false_positive_wins():
+    boxes, goal, decoy = two_rooms()
+    world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
+    agent = ModIINAgent(oracle_config(verify=False),
+                        oracle_reid=lambda obs: np.count_nonzero(world._ids == decoy) >= 20,
+                        oracle_ego_mask=lambda obs: world._ids == decoy)
+    rec = run(agent, world)
+    assert rec.action == Action.STOP and world.distance_to_goal() > 2.0
+
+
+def test_collision_marks_when_forward_fails():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-2.75, 0.0, math.pi), goal)  # facing the west wall, 8 cm from contact
+    agent = ModIINAgent(oracle_config(look_around_turns=0), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    agent._prev_pose, agent._prev_action = obs.pose, Action.MOVE_FORWARD  # as if a forward move just failed
+    agent.act(obs)
+    assert agent.grid.layers.collision.any()
+
+
+def test_exhausted_exploration_is_a_reported_stop():
+    world = BoxWorld(room_walls(-1.0, -1.0, 1.0, 1.0) + [(5, 5, 5.5, 5.5, 0.5)], Pose2D(), goal_box=4)
+    agent = ModIINAgent(oracle_config(), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+    rec = run(agent, world, max_steps=100)
+    assert rec.action == Action.STOP and rec.mode == "exhausted" and rec.planner_error
+
+
+def test_matcher_agent_needs_tau_and_uses_injected_matcher():
+    cfg = AgentConfig(reid=ReIDConfig(tau=5.0), policy=PolicyConfig(look_around_turns=2))
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(), goal)
+    agent = ModIINAgent(cfg, matcher=NoMatcher())
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    assert agent.act(obs) == Action.TURN_LEFT
+    rec = agent.last_record
+    assert rec.reid_score == 0.0 and rec.reid_tau == 5.0 and not rec.goal_detected
+
+
+def test_oracle_modes_need_their_callables():
+    with pytest.raises(ValueError):
+        ModIINAgent(oracle_config())
+
+
+def test_deployment_configs_load_strictly():
+    for name in ("sim", "stretch"):
+        assert isinstance(load_agent_config(name), AgentConfig)
+    with pytest.raises(ConfigError):
+        from_dict(AgentConfig, {"policy": {"stop_radius": 1.0}})
