@@ -1,0 +1,406 @@
+"""``StretchBackend``: the agent's ``Backend`` on a Hello Robot Stretch (DESIGN sections 4, 6).
+
+The same loop that runs in simulation runs here::
+
+    obs = backend.reset(); agent.reset(obs.goal_image)
+    while True:
+        action = agent.act(obs); backend.apply(action)
+        if action == Action.STOP: break
+        obs = backend.observe()
+
+* ``reset()`` connects, refuses to go on when the robot is runstopped or not homed,
+  seeds the step counter from the robot's echo, sends the navigation posture and the
+  head pose, waits until the camera tilt is there, and fixes the run's start pose.
+* ``apply()`` turns a discrete action into an absolute ``xyt`` goal composed from the
+  current base pose, sends it, waits for the echo (which comes after the motion) and
+  checks that the base got there. STOP sends nothing: moves block on the robot, so it is
+  already standing still, and the bridge has no stop action.
+* ``observe()`` returns an observation captured after the last acknowledged action.
+
+Every failure is a ``BackendError`` with a reason code: ``disconnected`` (no state for
+more than ``state_silence_s``), ``runstopped``, ``not_homed``, ``ack_timeout``,
+``move_failed``, ``head_failed``, ``no_observation``, ``bad_observation``, ``protocol``,
+``closed``. Runstop, homing and silence are checked before sending and throughout every
+wait, so a runstop pressed mid-move ends the run at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from agent.types import Action, BackendError, Observation, Pose2D
+from robot import encoding
+from robot.config import StretchConfig
+from robot.link import BridgeLink
+from robot.protocol import (
+    RawObservation,
+    RobotState,
+    discrete_goal,
+    head_message,
+    move_message,
+    pose_error,
+    posture_message,
+)
+
+log = logging.getLogger(__name__)
+
+_TICK_S = 0.05  # how often waits re-check safety when no message arrives
+_HEAD_STILL_RAD = math.radians(0.5)  # camera tilt change between observations that counts as still
+
+
+@dataclass(frozen=True, slots=True)
+class MoveReport:
+    """What happened to one base goal.
+
+    ack_wait_s: from the first send to the echo (includes the motion on the robot).
+    total_s: the whole ``apply`` call. blocked: the robot reported a failed motion
+    (``last_motion_failed``; the fake robot's collision) and stopped short of the goal.
+    """
+
+    step: int
+    action: Action
+    start_world: Pose2D
+    goal_world: Pose2D
+    end_world: Pose2D
+    ack_wait_s: float
+    total_s: float
+    resends: int
+    blocked: bool
+
+
+class StretchBackend:
+    """A Stretch behind stretch_ai's ZeroMQ bridge, as an ``agent.types.Backend``.
+
+    goal_image: (h, w, 3) uint8 RGB, any size (a phone photo); returned in every observation.
+    link_factory: builds the link (tests may wrap it); default ``BridgeLink``.
+    """
+
+    def __init__(
+        self,
+        goal_image: np.ndarray,
+        config: StretchConfig | None = None,
+        link_factory: Callable[[StretchConfig], BridgeLink] = BridgeLink,
+    ) -> None:
+        goal_image = np.asarray(goal_image)
+        if goal_image.ndim != 3 or goal_image.shape[2] != 3 or goal_image.dtype != np.uint8:
+            raise ValueError(f"goal_image must be (h, w, 3) uint8, got {goal_image.shape} {goal_image.dtype}")
+        self.goal_image = goal_image
+        self.config = config or StretchConfig()
+        self._link_factory = link_factory
+        self._link: BridgeLink | None = None
+        self._closed = False
+        self._start_world: Pose2D | None = None
+        self._next_step = 0
+        self._required_step: int | None = None  # observations must echo at least this
+        self._actions_applied = 0
+        self.moves: list[MoveReport] = []
+
+    # --- Backend protocol ----------------------------------------------------------------
+
+    def reset(self) -> Observation:
+        link = self._open()
+        cfg = self.config
+        self._wait_until(
+            lambda: link.state is not None and link.observation is not None,
+            cfg.connect_timeout_s,
+            "disconnected",
+            lambda: (
+                f"no {'state' if link.state is None else 'observation'} messages from the robot at "
+                f"{cfg.host} (ports {cfg.obs_port}/{cfg.state_port}) within {cfg.connect_timeout_s:.0f} s"
+                + self._problem_suffix()
+            ),
+            check_link=False,
+        )
+        state = self._check_safe()
+        if state.is_runstopped is None or state.is_homed is None:
+            log.warning(
+                "this bridge's state messages do not report is_runstopped/is_homed: "
+                "the backend cannot refuse to move a runstopped or unhomed robot"
+            )
+        echoed = link.echoed_step
+        if echoed is None:
+            raise BackendError("protocol", "the robot's messages carry no 'step': cannot acknowledge actions")
+        self._next_step = echoed + 1
+        self._required_step = echoed
+        log.info("connected to the Stretch at %s; robot's last step %d", cfg.host, echoed)
+        if cfg.send_posture:
+            self._send_and_wait(lambda s: posture_message(s), cfg.posture_timeout_s, "navigation posture")
+            step = self._send_and_wait(
+                lambda s: head_message(cfg.head_pan_rad, -cfg.head_tilt_rad, s), cfg.ack_timeout_s, "head pose"
+            )
+            self._wait_for_head(step)
+        raw = self._fresh_observation()
+        self._start_world = raw.base_world
+        self._actions_applied = 0
+        self.moves = []
+        return self._to_observation(raw)
+
+    def observe(self) -> Observation:
+        if self._start_world is None:
+            raise BackendError("protocol", "observe() before reset()")
+        return self._to_observation(self._fresh_observation())
+
+    def apply(self, action: Action) -> None:
+        if self._start_world is None:
+            raise BackendError("protocol", "apply() before reset()")
+        action = Action(action)
+        if action == Action.STOP:
+            self._actions_applied += 1
+            return
+        link = self._require_link()
+        self._check_safe()
+        t0 = time.monotonic()
+        start = link.state.base_world  # type: ignore[union-attr]  # _check_safe ensured a state
+        goal = discrete_goal(start, action)
+        sent_at = time.monotonic()
+        resends: list[int] = []
+        step = self._send_and_wait(lambda s: move_message(goal, s), self.config.ack_timeout_s, f"{action.name}", resends)
+        ack_wait_s = time.monotonic() - sent_at
+        end, blocked = self._check_arrival(goal, step)
+        self._actions_applied += 1
+        report = MoveReport(step, action, start, goal, end, ack_wait_s, time.monotonic() - t0, resends[0], blocked)
+        self.moves.append(report)
+        log.debug("step %d %s: ack after %.2f s, end error %.3f m", step, action.name, ack_wait_s, end.distance_to(goal))
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    # --- pieces ------------------------------------------------------------------------
+
+    def _open(self) -> BridgeLink:
+        if self._closed:
+            raise BackendError("closed", "the Stretch backend has been closed")
+        if self._link is None:
+            try:
+                self._link = self._link_factory(self.config)
+            except RuntimeError as exc:
+                raise BackendError("disconnected", str(exc)) from exc
+        return self._link
+
+    def _require_link(self) -> BridgeLink:
+        if self._closed or self._link is None:
+            raise BackendError("closed", "the Stretch backend is not connected (closed, or reset() not called)")
+        return self._link
+
+    def _problem_suffix(self) -> str:
+        problem = self._link.last_problem if self._link is not None else None
+        return f"; last problem: {problem}" if problem else ""
+
+    def _check_safe(self, now: float | None = None) -> RobotState:
+        """Raise unless the robot is connected, homed and not runstopped."""
+        link = self._require_link()
+        if link.failure:
+            raise BackendError("disconnected", link.failure)
+        state = link.state
+        now = time.monotonic() if now is None else now
+        if state is None:
+            raise BackendError("disconnected", "no state message from the robot yet")
+        silence_s = now - state.received_s
+        if silence_s > self.config.state_silence_s:
+            raise BackendError(
+                "disconnected",
+                f"no state message from the robot for {silence_s:.1f} s (limit {self.config.state_silence_s:.1f} s)"
+                + self._problem_suffix(),
+            )
+        if state.is_runstopped:
+            raise BackendError("runstopped", "the robot is runstopped: release the runstop button and start a new run")
+        if state.is_homed is False:
+            raise BackendError("not_homed", "the robot is not homed: run stretch_robot_home.py on the robot first")
+        return state
+
+    def _wait_until(
+        self,
+        done: Callable[[], bool],
+        timeout_s: float,
+        reason: str,
+        message: Callable[[], str],
+        check_link: bool = True,
+        on_tick: Callable[[float], None] | None = None,
+    ) -> None:
+        """Poll ``done`` until it holds; re-check safety every tick; never wait past ``timeout_s``."""
+        link = self._require_link()
+        deadline = time.monotonic() + timeout_s
+        while True:
+            now = time.monotonic()
+            if done():
+                return
+            if check_link:
+                self._check_safe(now)
+            if now >= deadline:
+                raise BackendError(reason, message())
+            if on_tick is not None:
+                on_tick(now)
+            link.wait(done, min(_TICK_S, deadline - now))
+
+    def _send_and_wait(
+        self,
+        build: Callable[[int], dict[str, Any]],
+        timeout_s: float,
+        what: str,
+        resends_out: list[int] | None = None,
+    ) -> int:
+        """Send an action with the next step and wait for its echo, re-sending meanwhile."""
+        link = self._require_link()
+        step = self._next_step
+        self._next_step += 1
+        message = build(step)
+        link.send(message)
+        last_sent = [time.monotonic()]
+        resends = [0]
+
+        def resend(now: float) -> None:
+            if now - last_sent[0] >= self.config.resend_interval_s:
+                link.send(message)
+                last_sent[0] = now
+                resends[0] += 1
+
+        def acked() -> bool:
+            echoed = link.echoed_step
+            return echoed is not None and echoed >= step
+
+        self._wait_until(
+            acked,
+            timeout_s,
+            "ack_timeout",
+            lambda: (
+                f"the robot did not acknowledge {what} (step {step}) within {timeout_s:.0f} s "
+                f"(last echoed step {link.echoed_step})"
+            ),
+            on_tick=resend,
+        )
+        self._required_step = step
+        if resends_out is not None:
+            resends_out.append(resends[0])
+        return step
+
+    def _check_arrival(self, goal: Pose2D, step: int) -> tuple[Pose2D, bool]:
+        """After the echo: the base must be at the goal, or the robot must say the motion failed."""
+        link = self._require_link()
+        cfg = self.config
+        acked_at = time.monotonic()
+        outcome: list[tuple[Pose2D, bool]] = []
+
+        def finished() -> bool:
+            state, obs = link.state, link.observation
+            if state is None or state.received_s < acked_at:
+                return False  # wait for a pose reported after the echo
+            err_m, err_rad = pose_error(state.base_world, goal)
+            if err_m <= cfg.goal_tolerance_m and err_rad <= cfg.goal_tolerance_rad:
+                outcome[:] = [(state.base_world, False)]
+                return True
+            if obs is not None and obs.step is not None and obs.step >= step and obs.last_motion_failed:
+                outcome[:] = [(obs.base_world, True)]
+                return True
+            return False
+
+        def failure() -> str:
+            state = link.state
+            if state is None:
+                return f"no base pose after step {step}"
+            err_m, err_rad = pose_error(state.base_world, goal)
+            return (
+                f"the robot acknowledged step {step} but its base stopped {err_m:.2f} m and "
+                f"{math.degrees(err_rad):.0f} deg from the goal (tolerance {cfg.goal_tolerance_m:.2f} m, "
+                f"{math.degrees(cfg.goal_tolerance_rad):.0f} deg) without reporting a failed motion"
+            )
+
+        self._wait_until(finished, cfg.settle_timeout_s, "move_failed", failure)
+        end, blocked = outcome[0]
+        if blocked:
+            log.info("step %d: the robot reports a failed motion (blocked) %.2f m short", step, end.distance_to(goal))
+        return end, blocked
+
+    def _wait_for_head(self, step: int) -> None:
+        link = self._require_link()
+        cfg = self.config
+        wanted = cfg.head_tilt_rad
+
+        def tilt_of(obs: RawObservation | None) -> float | None:
+            if obs is None or obs.step is None or obs.step < step:
+                return None
+            try:
+                return encoding.camera_tilt_rad(encoding.camera_pose_matrix(obs.T_world_camera))
+            except encoding.DecodeError:
+                return None
+
+        # (received_s, tilt, verdict) of the last observation judged
+        previous: list[tuple[float, float, bool]] = []
+
+        def there() -> bool:
+            # Within tolerance and no longer moving: two successive observations agree.
+            obs = link.observation
+            tilt = tilt_of(obs)
+            if tilt is None or obs is None:
+                return False
+            if previous and previous[0][0] == obs.received_s:
+                return previous[0][2]
+            settled = bool(previous) and abs(previous[0][1] - tilt) <= _HEAD_STILL_RAD
+            verdict = settled and abs(tilt - wanted) <= cfg.head_tolerance_rad
+            previous[:] = [(obs.received_s, tilt, verdict)]
+            return verdict
+
+        def failure() -> str:
+            tilt = tilt_of(link.observation)
+            seen = "no observation after the head command" if tilt is None else f"{math.degrees(tilt):.1f} deg"
+            return f"the camera tilt did not reach {math.degrees(wanted):.1f} deg (down) within {cfg.head_timeout_s:.0f} s: {seen}"
+
+        self._wait_until(there, cfg.head_timeout_s, "head_failed", failure)
+
+    def _fresh_observation(self) -> RawObservation:
+        """The latest observation that echoes the last acknowledged step (captured after it)."""
+        link = self._require_link()
+        required = self._required_step
+
+        def fresh() -> bool:
+            obs = link.observation
+            return obs is not None and (required is None or (obs.step is not None and obs.step >= required))
+
+        self._wait_until(
+            fresh,
+            self.config.observation_timeout_s,
+            "no_observation",
+            lambda: f"no observation echoing step {required} within {self.config.observation_timeout_s:.0f} s",
+        )
+        return link.observation  # type: ignore[return-value]
+
+    def _to_observation(self, raw: RawObservation) -> Observation:
+        assert self._start_world is not None
+        try:
+            rgb = encoding.decode_rgb(raw.rgb_encoded)
+            depth_m = encoding.decode_depth(raw.depth_encoded)
+            if depth_m.shape != rgb.shape[:2]:
+                raise encoding.DecodeError(f"depth {depth_m.shape} is not aligned with rgb {rgb.shape[:2]}")
+            intrinsics = encoding.intrinsics_from_message(raw.camera_K, rgb.shape)
+            T_world_camera = encoding.camera_pose_matrix(raw.T_world_camera)
+        except encoding.DecodeError as exc:
+            raise BackendError("bad_observation", f"unusable observation from the robot: {exc}") from exc
+        return Observation(
+            rgb=rgb,
+            depth_m=depth_m,
+            pose=raw.base_world.relative_to(self._start_world),
+            intrinsics=intrinsics,
+            goal_image=self.goal_image,
+            camera_height_m=encoding.camera_height_m(T_world_camera),
+            camera_tilt_rad=encoding.camera_tilt_rad(T_world_camera),
+            step=self._actions_applied,
+            timestamp_s=raw.received_s,
+        )
+
+    # --- context manager ---------------------------------------------------------------
+
+    def __enter__(self) -> "StretchBackend":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,89 @@
+"""Configuration of the Stretch backend (workstation side of the stretch_ai bridge).
+
+The agent's deployment parameters for the robot (re-ID threshold tau, camera
+assumptions) live in ``agent/configs/stretch.yaml``, owned by the agent; this dataclass
+holds only what the link to the robot needs. Load it from YAML with
+``agent.configio.load_yaml(StretchConfig, path)`` (unknown keys are rejected).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from robot.protocol import ACTION_PORT, OBS_PORT, STATE_PORT
+
+
+@dataclass(frozen=True, slots=True)
+class StretchConfig:
+    """Address, timeouts and tolerances of the bridge link.
+
+    host: the robot's address (the bridge binds; we connect).
+    state_silence_s: more than this without a state message is a disconnect (DESIGN 6).
+    connect_timeout_s: wait this long for the first state and observation messages.
+    ack_timeout_s: wait this long for the echo of a base goal. On the robot the echo comes
+        only after the base has arrived, so this must cover the whole motion (a 0.25 m
+        move or a 30 deg turn takes a few seconds on a Stretch; the margin is for slow
+        floors and the goto controller's settling).
+    posture_timeout_s: same for the navigation posture (lift and arm move first).
+    resend_interval_s: re-send an unacknowledged action this often. Safe because goals are
+        absolute and the bridge drops steps it has already handled; it covers a first
+        message lost while the PUB/SUB connection is still being set up.
+    settle_timeout_s: after the echo, wait this long for the reported base pose to reach
+        the goal before calling the move failed.
+    goal_tolerance_m / goal_tolerance_rad: a move has finished when the base is this close
+        to its goal.
+    observation_timeout_s: wait this long for an observation captured after the last move.
+    head_pan_rad / head_tilt_rad: head pose sent after the navigation posture; tilt is
+        positive looking down (``Observation.camera_tilt_rad``; the bridge's sign is the
+        opposite). 0 = level, the simulator's camera (DESIGN section 1).
+    head_tolerance_rad / head_timeout_s: the measured camera tilt (from ``camera_pose``)
+        must reach the requested tilt within this tolerance and time.
+    send_posture: send the navigation posture and head pose in ``reset()``.
+    max_message_bytes: larger messages are dropped by ZeroMQ before unpickling.
+    """
+
+    host: str = "127.0.0.1"
+    obs_port: int = OBS_PORT
+    action_port: int = ACTION_PORT
+    state_port: int = STATE_PORT
+    state_silence_s: float = 1.0
+    connect_timeout_s: float = 10.0
+    ack_timeout_s: float = 30.0
+    posture_timeout_s: float = 60.0
+    resend_interval_s: float = 1.0
+    settle_timeout_s: float = 2.0
+    goal_tolerance_m: float = 0.10
+    goal_tolerance_rad: float = 0.20
+    observation_timeout_s: float = 5.0
+    head_pan_rad: float = 0.0
+    head_tilt_rad: float = 0.0
+    head_tolerance_rad: float = 0.15
+    head_timeout_s: float = 15.0
+    send_posture: bool = True
+    max_message_bytes: int = 64 * 1024 * 1024
+
+    def __post_init__(self) -> None:
+        for name in ("obs_port", "action_port", "state_port"):
+            port = getattr(self, name)
+            if not 0 < port < 65536:
+                raise ValueError(f"{name} must be a TCP port, got {port}")
+        if len({self.obs_port, self.action_port, self.state_port}) != 3:
+            raise ValueError("obs_port, action_port and state_port must differ")
+        for name in (
+            "state_silence_s",
+            "connect_timeout_s",
+            "ack_timeout_s",
+            "posture_timeout_s",
+            "resend_interval_s",
+            "settle_timeout_s",
+            "observation_timeout_s",
+            "head_timeout_s",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive")
+        if not self.host:
+            raise ValueError("host must not be empty")
+
+    def endpoint(self, port: int) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"tcp://{host}:{port}"
