@@ -145,13 +145,13 @@ class ModIINAgent:
         t = time.perf_counter()
         action, mode, reason, plan, target_kind, error, cand = self._decide(obs, candidates)
         timings["planning"] = _ms(t)
-        timings["total"] = _ms(t_start)
 
         self._prev_pose, self._prev_action = obs.pose, action
         self._steps += 1
         snap = None
         if pc.snapshot_every > 0 and (obs.step % pc.snapshot_every == 0 or action == Action.STOP):
             snap = self.grid.snapshot(frontier_mask(self.grid, self.config.frontier.min_cluster_cells))
+        timings["total"] = _ms(t_start)  # includes the record's map snapshot
         self._record = AgentRecord(
             step=obs.step,
             action=action,
