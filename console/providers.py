@@ -1,0 +1,34 @@
+"""The console's backend choices, built from the command line.
+
+``sim`` (the PyBullet simulator) is always offered and is the default. A robot
+backend is offered when it is configured (issue 5 adds the Stretch here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from console.session import BackendProvider
+from console.sim_provider import SimProvider, SimProviderConfig
+
+logger = logging.getLogger(__name__)
+
+
+def build_providers(args: argparse.Namespace, data_dir: Path) -> dict[str, BackendProvider]:
+    n_homes = max(1, int(getattr(args, "homes", 2)))
+    first = getattr(args, "home_seed", None)
+    first = 0 if first is None else int(first)
+    sim_config = SimProviderConfig(
+        home_seeds=tuple(range(first, first + n_homes)),
+        agent_config_path=getattr(args, "agent_config", None),
+    )
+    providers: dict[str, BackendProvider] = {"sim": SimProvider(data_dir, sim_config)}
+    stretch_host = getattr(args, "stretch_host", None)
+    if stretch_host:
+        from console.stretch_provider import StretchProvider
+
+        providers["stretch"] = StretchProvider(stretch_host)
+        logger.info("Stretch backend offered (robot at %s)", stretch_host)
+    return providers

@@ -1,0 +1,213 @@
+"""The console's calls into the simulator (``sim/``), in one place.
+
+* ``build_home_entry``: build a small home, pick start poses (one per room, one near
+  each goal instance) and render its gallery with the simulator's goal-image sampler.
+* ``open_session``: a ``SimBackend`` for a start pose and any goal image (with the
+  target instance when it is known, so the run can be scored) and a Mod-IIN agent.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+from PIL import Image
+
+from agent.types import Action, Agent, Pose2D
+from console.agents import build_agent
+from console.photos import dhash
+from console.session import Outcome
+
+logger = logging.getLogger(__name__)
+
+START_CLEARANCE_M = 0.25  # free space around a start beyond the robot's own footprint
+NEAR_START_RANGE_M = (1.2, 2.2)  # "near <instance>" starts: this far from the instance centre
+
+
+def generator_version() -> Any:
+    from sim.scene_gen import GENERATOR_VERSION
+
+    return GENERATOR_VERSION
+
+
+def _world(seed: int, n_rooms: int) -> Any:
+    from sim.scene_gen import generate_home
+    from sim.world import SimWorld
+
+    return SimWorld(generate_home(seed, n_rooms=n_rooms))
+
+
+def _clear_cells(world: Any) -> tuple[Any, np.ndarray]:
+    from scipy.ndimage import binary_erosion
+
+    grid = world.navigable_grid(0.05)
+    cells = int(round(START_CLEARANCE_M / grid.resolution_m))
+    clear = binary_erosion(grid.navigable, iterations=cells)
+    return grid, clear if clear.any() else grid.navigable
+
+
+def _starts(world: Any, rng: np.random.Generator) -> list[tuple[str, str, tuple[float, float, float]]]:
+    """(id, label, pose_world) for the navigable point nearest each room's centre, facing
+    the room's longer side (the view that shows most of the room at the first step)."""
+    grid, clear = _clear_cells(world)
+    xs, ys = grid.cell_centres()
+    out = []
+    for room in world.home.rooms:
+        cx, cy = room.center_xy_m
+        inside = clear & np.vectorize(room.contains)(xs, ys) if clear.size < 200_000 else clear
+        if not inside.any():
+            continue
+        d2 = np.where(inside, (xs - cx) ** 2 + (ys - cy) ** 2, np.inf)
+        i, j = np.unravel_index(int(np.argmin(d2)), d2.shape)
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        out.append((f"r{room.index}", f"{room.name} (middle)", (float(xs[i, j]), float(ys[i, j]), yaw)))
+    return out
+
+
+def _near_start(world: Any, instance: Any, rng: np.random.Generator) -> tuple[float, float, float] | None:
+    """A clear cell 1.2-2.2 m from the instance, facing it (short runs for tests and demos)."""
+    grid, clear = _clear_cells(world)
+    xs, ys = grid.cell_centres()
+    cx, cy, _ = instance.center_xyz_m()
+    d = np.hypot(xs - cx, ys - cy)
+    ok = clear & (d >= NEAR_START_RANGE_M[0]) & (d <= NEAR_START_RANGE_M[1])
+    room = world.home.room_at(cx, cy)
+    if room is not None:
+        same_room = ok & np.vectorize(room.contains)(xs, ys)
+        ok = same_room if same_room.any() else ok
+    cells = np.argwhere(ok)
+    if len(cells) == 0:
+        return None
+    i, j = cells[int(rng.integers(len(cells)))]
+    x, y = float(xs[i, j]), float(ys[i, j])
+    return (x, y, math.atan2(cy - y, cx - x))
+
+
+def build_home_entry(
+    *,
+    seed: int,
+    home_id: str,
+    out_dir: Path,
+    n_rooms: int,
+    views_per_instance: int,
+    n_starts: int,
+    progress: Callable[[str], None],
+) -> Any:
+    """Build one home's catalog entry and write its gallery PNGs into ``out_dir``."""
+    from console.sim_provider import GalleryItem, HomeEntry, Start
+    from sim.goals import sample_goal_images
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    world = _world(seed, n_rooms)
+    try:
+        rng = np.random.default_rng(seed)
+        starts = [Start(*s) for s in _starts(world, rng)[:n_starts]]
+        gallery: list[GalleryItem] = []
+        instances = world.home.instances
+        progress(f"{len(world.home.rooms)} rooms, {len(instances)} goal instances; rendering the gallery")
+        for inst in instances:
+            room = world.home.rooms[inst.room_index].name
+            images = sample_goal_images(world, inst.object_id, views_per_instance, np.random.default_rng([seed, inst.object_id]))
+            for v, rgb in enumerate(images):
+                name = f"i{inst.object_id}-v{v}"
+                Image.fromarray(rgb).save(out_dir / f"{name}.png")
+                gallery.append(
+                    GalleryItem(
+                        item=f"{home_id}/{name}",
+                        instance_id=int(inst.object_id),
+                        category=inst.category,
+                        room=room,
+                        label=f"{inst.category} #{inst.object_id} ({room})",
+                        file=f"{name}.png",
+                        dhash=f"{dhash(rgb):016x}",
+                    )
+                )
+            near = _near_start(world, inst, rng)
+            if near is not None:
+                starts.append(Start(f"n{inst.object_id}", f"near {inst.category} #{inst.object_id} ({room})", near))
+        if not starts:
+            raise RuntimeError(f"home {seed} has no clear start position")
+        progress(f"{len(gallery)} gallery images, {len(starts)} starts")
+        return HomeEntry(
+            id=home_id,
+            seed=seed,
+            label=f"Home {seed} ({len(world.home.rooms)} rooms: {', '.join(r.name for r in world.home.rooms)})",
+            rooms=len(world.home.rooms),
+            starts=tuple(starts),
+            gallery=tuple(gallery),
+        )
+    finally:
+        world.close()
+
+
+@dataclass
+class SimSession:
+    """A SimBackend and a Mod-IIN agent for one console run."""
+
+    backend: Any
+    agent: Agent
+    agent_config: Mapping[str, Any] = field(default_factory=dict)
+    target_known: bool = False
+
+    def outcome(self, last_action: Action | None, reason: str) -> Outcome:
+        if reason == "operator":
+            detail = "stopped by the operator"
+            outcome = "stopped"
+        elif reason == "agent":
+            detail = "the agent stopped"
+            outcome = "unscored"
+        else:
+            detail = "the step budget ran out"
+            outcome = "unscored"
+        if not self.target_known:
+            return Outcome(outcome, f"{detail}; the goal photo's instance is unknown, so the run is not scored")
+        metrics = _metrics(self.backend.result())
+        if outcome == "stopped":
+            return Outcome("stopped", detail, metrics)
+        success = bool(metrics.get("success")) if metrics else False
+        return Outcome("success" if success else "failure", detail, metrics)
+
+    def close(self) -> None:
+        self.backend.close()
+
+
+def _metrics(result: Any) -> dict[str, Any]:
+    if result is None:
+        return {}
+    if isinstance(result, Mapping):
+        return dict(result)
+    import dataclasses
+
+    if dataclasses.is_dataclass(result):
+        return dataclasses.asdict(result)
+    return {"result": str(result)}
+
+
+def open_session(
+    *,
+    home_seed: int,
+    n_rooms: int,
+    start_pose_world: tuple[float, float, float],
+    goal_rgb: np.ndarray,
+    target_instance_id: int | None,
+    agent_config_path: Path | None,
+) -> SimSession:
+    from sim.backend import SimBackend
+
+    world = _world(home_seed, n_rooms)
+    try:
+        backend = SimBackend(
+            world,
+            start_pose_world=Pose2D(*start_pose_world),
+            goal_image=goal_rgb,
+            goal_instance_id=target_instance_id,
+        )
+        agent, agent_config = build_agent(agent_config_path or "sim")
+    except BaseException:
+        world.close()
+        raise
+    return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None)

@@ -1,0 +1,368 @@
+"""The simulator as a backend choice: homes, starts, a gallery of goal images, scoring.
+
+On first start the console prepares a few small homes (``prepare_async``): for each,
+a handful of start poses and a gallery of goal images of its instances rendered by
+the simulator's goal-image sampler. Everything is cached under ``<data>/sim/`` and
+keyed by the simulator's generator version, so later starts load in milliseconds.
+
+A run's target instance is known, and the run is scored (success, SPL, NE), when
+* the page says which gallery image the photo came from (``gallery_item``), or
+* the photo is a gallery image re-encoded or resized (perceptual hash within
+  ``DHASH_MAX_BITS`` of a gallery image of the chosen home), or
+* an episode is chosen, or ``target_instance`` is given.
+Otherwise the run is unscored and its outcome says so.
+
+The simulator-specific calls live in ``console.sim_adapter``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from agent.types import MAX_STEPS
+from console.photos import hamming
+from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession
+
+logger = logging.getLogger(__name__)
+
+DHASH_MAX_BITS = 6  # of 64: re-encodings and resizes stay within ~4 bits, other pictures differ by ~32
+CATALOG_VERSION = 1
+_ITEM = re.compile(r"^(home-\d+)/(i\d+-v\d+)$")
+_FILE = re.compile(r"^i\d+-v\d+\.png$")
+
+
+@dataclass(frozen=True, slots=True)
+class Start:
+    id: str
+    label: str
+    pose_world: tuple[float, float, float]  # x_m, y_m, yaw_rad in the home frame
+
+
+@dataclass(frozen=True, slots=True)
+class GalleryItem:
+    item: str  # "home-<seed>/i<instance>-v<view>"
+    instance_id: int
+    category: str
+    room: str
+    label: str
+    file: str
+    dhash: str  # 16 hex digits
+
+
+@dataclass(frozen=True, slots=True)
+class HomeEntry:
+    id: str
+    seed: int
+    label: str
+    rooms: int
+    starts: tuple[Start, ...]
+    gallery: tuple[GalleryItem, ...]
+
+    @staticmethod
+    def from_json(d: Mapping[str, Any]) -> "HomeEntry":
+        return HomeEntry(
+            id=d["id"],
+            seed=int(d["seed"]),
+            label=d["label"],
+            rooms=int(d["rooms"]),
+            starts=tuple(Start(s["id"], s["label"], tuple(s["pose_world"])) for s in d["starts"]),
+            gallery=tuple(GalleryItem(**g) for g in d["gallery"]),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class SimProviderConfig:
+    home_seeds: tuple[int, ...] = (0, 1)
+    n_rooms: int = 3  # small homes: quick to build, quick to explore
+    views_per_instance: int = 1
+    starts_per_home: int = 4
+    agent_config_path: Path | None = None  # None: the agent's sim deployment YAML
+
+
+class SimProvider:
+    name = "sim"
+    label = "Simulator (PyBullet home)"
+
+    def __init__(self, data_dir: Path, config: SimProviderConfig = SimProviderConfig()) -> None:
+        self.dir = Path(data_dir) / "sim"
+        self.config = config
+        self._lock = threading.Lock()
+        self._homes: dict[str, HomeEntry] = {}
+        self._ready = False
+        self._error: str | None = None
+        self._progress = "not prepared yet"
+        self._thread: threading.Thread | None = None
+        self._load_cache()
+
+    # --- preparation ---------------------------------------------------------
+
+    def _cache_path(self) -> Path:
+        return self.dir / "catalog.json"
+
+    def _cache_key(self) -> dict[str, Any]:
+        from console import sim_adapter
+
+        return {
+            "catalog_version": CATALOG_VERSION,
+            "simulator": sim_adapter.generator_version(),
+            "seeds": list(self.config.home_seeds),
+            "n_rooms": self.config.n_rooms,
+            "views_per_instance": self.config.views_per_instance,
+            "starts_per_home": self.config.starts_per_home,
+        }
+
+    def _load_cache(self) -> None:
+        path = self._cache_path()
+        if not path.is_file():
+            return
+        try:
+            doc = json.loads(path.read_text())
+            if doc.get("key") != self._cache_key():
+                logger.info("simulator gallery cache is stale; it will be rebuilt")
+                return
+            homes = [HomeEntry.from_json(h) for h in doc["homes"]]
+        except (ValueError, KeyError, TypeError) as exc:
+            logger.warning("ignoring unreadable simulator cache %s: %s", path, exc)
+            return
+        missing = [g.file for h in homes for g in h.gallery if not (self.dir / h.id / g.file).is_file()]
+        if missing:
+            logger.info("simulator gallery cache lacks %d images; it will be rebuilt", len(missing))
+            return
+        with self._lock:
+            self._homes = {h.id: h for h in homes}
+            self._ready = True
+            self._progress = f"{len(homes)} homes ready (cached)"
+
+    def prepare_async(self, hub: Any | None = None) -> threading.Thread | None:
+        """Build homes and gallery in the background (no-op when cached). Progress goes to the
+        log and, as ``log`` events, to the console page."""
+        if self._ready:
+            self._log(hub, self._progress, ready=True)
+            return None
+        self._thread = threading.Thread(target=self.prepare, args=(hub,), name="sim-prepare", daemon=True)
+        self._thread.start()
+        return self._thread
+
+    def prepare(self, hub: Any | None = None) -> None:
+        from console import sim_adapter
+
+        if self._ready:
+            return
+        t0 = time.perf_counter()
+        homes: list[HomeEntry] = []
+        try:
+            for k, seed in enumerate(self.config.home_seeds):
+                home_id = f"home-{seed}"
+                self._log(hub, f"preparing simulator home {k + 1}/{len(self.config.home_seeds)} (seed {seed})")
+                entry = sim_adapter.build_home_entry(
+                    seed=seed,
+                    home_id=home_id,
+                    out_dir=self.dir / home_id,
+                    n_rooms=self.config.n_rooms,
+                    views_per_instance=self.config.views_per_instance,
+                    n_starts=self.config.starts_per_home,
+                    progress=lambda msg: self._log(hub, f"{home_id}: {msg}"),
+                )
+                homes.append(entry)
+            doc = {"key": self._cache_key(), "homes": [_entry_json(h) for h in homes]}
+            self.dir.mkdir(parents=True, exist_ok=True)
+            tmp = self._cache_path().with_suffix(".tmp")
+            tmp.write_text(json.dumps(doc, indent=1))
+            tmp.replace(self._cache_path())
+        except Exception as exc:  # preparation failing must not kill the console; the page shows why
+            logger.exception("preparing the simulator failed")
+            with self._lock:
+                self._error = f"preparing the simulator failed: {type(exc).__name__}: {exc}"
+            self._log(hub, self._error)
+            return
+        with self._lock:
+            self._homes = {h.id: h for h in homes}
+            self._ready = True
+            self._progress = f"{len(homes)} homes ready in {time.perf_counter() - t0:.1f} s"
+        self._log(hub, self._progress, ready=True)
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        return self._ready
+
+    def _log(self, hub: Any | None, message: str, ready: bool = False) -> None:
+        logger.info("%s", message)
+        with self._lock:
+            self._progress = message
+        if hub is not None:
+            hub.publish("log", None, {"message": message, "ready": ready, "source": "sim"})
+
+    # --- BackendProvider -----------------------------------------------------
+
+    def available(self) -> tuple[bool, str]:
+        with self._lock:
+            if self._error:
+                return False, self._error
+            if not self._ready:
+                return False, f"preparing homes ({self._progress})"
+        return True, ""
+
+    @property
+    def homes(self) -> dict[str, HomeEntry]:
+        with self._lock:
+            return dict(self._homes)
+
+    def describe(self) -> Mapping[str, Any]:
+        homes = []
+        for h in self.homes.values():
+            homes.append(
+                {
+                    "id": h.id,
+                    "label": h.label,
+                    "starts": [{"id": s.id, "label": s.label} for s in h.starts] + [{"id": "random", "label": "random"}],
+                    "gallery": [
+                        {
+                            "item": g.item,
+                            "instance": g.instance_id,
+                            "category": g.category,
+                            "label": g.label,
+                            "url": f"/api/sim/gallery/{h.id}/{g.file}",
+                        }
+                        for g in h.gallery
+                    ],
+                }
+            )
+        return {"homes": homes, "progress": self._progress}
+
+    def gallery_path(self, home_id: str, filename: str) -> Path | None:
+        home = self.homes.get(home_id)
+        if home is None or not _FILE.match(filename) or all(g.file != filename for g in home.gallery):
+            return None
+        path = self.dir / home.id / filename
+        return path if path.is_file() else None
+
+    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        homes = self.homes
+        if not homes:
+            raise ProviderUnavailable("the simulator has no homes prepared yet")
+        unknown = set(options) - {"home", "start", "gallery_item", "target_instance", "max_steps", "episode"}
+        if unknown:
+            raise OptionsError(f"unknown simulator options: {sorted(unknown)}")
+        if "episode" in options:
+            raise OptionsError("episodes are chosen as a home and a start here; pass home and start instead")
+        home_id = options.get("home") or next(iter(homes))
+        home = homes.get(home_id)
+        if home is None:
+            raise OptionsError(f"no home {home_id!r}; homes are {sorted(homes)}")
+        start = _parse_start(home, options.get("start"))
+        max_steps = _parse_max_steps(options.get("max_steps"))
+
+        target: dict[str, Any] | None = None
+        item = options.get("gallery_item")
+        if item:
+            m = _ITEM.match(item)
+            found = next((g for g in home.gallery if g.item == item), None) if m else None
+            if found is None:
+                raise OptionsError(f"no gallery image {item!r} in {home.id}")
+            target = _target(found, "gallery_item")
+        elif options.get("target_instance") is not None:
+            try:
+                iid = int(options["target_instance"])
+            except ValueError:
+                raise OptionsError("target_instance must be an integer instance id") from None
+            found = next((g for g in home.gallery if g.instance_id == iid), None)
+            if found is None:
+                raise OptionsError(f"{home.id} has no goal instance {iid}")
+            target = _target(found, "target_instance")
+        else:
+            best = min(home.gallery, key=lambda g: hamming(int(g.dhash, 16), goal_dhash), default=None)
+            if best is not None:
+                dist = hamming(int(best.dhash, 16), goal_dhash)
+                if dist <= DHASH_MAX_BITS:
+                    target = _target(best, f"perceptual hash ({dist} of 64 bits differ)")
+        resolved_options = {
+            "home": home.id,
+            "home_seed": home.seed,
+            "start": start.id,
+            "start_pose_world": list(start.pose_world),
+            "max_steps": max_steps,
+        }
+        return ResolvedRun("sim", resolved_options, target, max_steps)
+
+    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
+        from console import sim_adapter
+
+        opts = resolved.options
+        target = resolved.target
+        return sim_adapter.open_session(
+            home_seed=int(opts["home_seed"]),
+            n_rooms=self.config.n_rooms,
+            start_pose_world=tuple(opts["start_pose_world"]),
+            goal_rgb=goal_rgb,
+            target_instance_id=None if target is None else int(target["instance_id"]),
+            agent_config_path=self.config.agent_config_path,
+        )
+
+    def close(self) -> None:
+        return None
+
+
+def _target(g: GalleryItem, identified_by: str) -> dict[str, Any]:
+    return {
+        "instance_id": g.instance_id,
+        "category": g.category,
+        "room": g.room,
+        "gallery_item": g.item,
+        "identified_by": identified_by,
+    }
+
+
+def _parse_start(home: HomeEntry, text: str | None) -> Start:
+    if not text:
+        return home.starts[0]
+    for s in home.starts:
+        if s.id == text:
+            return s
+    if text == "random":
+        rng = np.random.default_rng()
+        s = home.starts[int(rng.integers(len(home.starts)))]
+        return Start(s.id, s.label, (s.pose_world[0], s.pose_world[1], float(rng.uniform(-math.pi, math.pi))))
+    parts = text.split(",")
+    if len(parts) == 3:
+        try:
+            x, y, yaw_deg = (float(p) for p in parts)
+        except ValueError:
+            raise OptionsError(f"start {text!r}: expected 'x,y,yaw_deg' in metres and degrees") from None
+        if not all(math.isfinite(v) for v in (x, y, yaw_deg)):
+            raise OptionsError(f"start {text!r} is not finite")
+        return Start("custom", f"({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg)", (x, y, math.radians(yaw_deg)))
+    raise OptionsError(f"no start {text!r} in {home.id}; starts are {[s.id for s in home.starts]}, 'random' or 'x,y,yaw_deg'")
+
+
+def _parse_max_steps(text: str | None) -> int:
+    if text is None:
+        return MAX_STEPS
+    try:
+        n = int(text)
+    except ValueError:
+        raise OptionsError("max_steps must be an integer") from None
+    if not 1 <= n <= MAX_STEPS:
+        raise OptionsError(f"max_steps must be between 1 and {MAX_STEPS}")
+    return n
+
+
+def _entry_json(h: HomeEntry) -> dict[str, Any]:
+    return {
+        "id": h.id,
+        "seed": h.seed,
+        "label": h.label,
+        "rooms": h.rooms,
+        "starts": [asdict(s) for s in h.starts],
+        "gallery": [asdict(g) for g in h.gallery],
+    }

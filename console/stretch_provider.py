@@ -1,0 +1,74 @@
+"""The Hello Robot Stretch as a backend choice (offered when a robot address is configured).
+
+The run uses ``robot.backend.StretchBackend`` (the stretch_ai ZeroMQ bridge client) and the
+agent's ``stretch`` deployment config. A real home has no ground truth, so these runs are
+never scored: the outcome says whether the agent stopped and why.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from agent.types import MAX_STEPS, Action, Agent, Backend
+from console.agents import build_agent
+from console.session import OptionsError, Outcome, ResolvedRun, RunSession
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class StretchSession:
+    backend: Backend
+    agent: Agent
+    agent_config: Mapping[str, Any] = field(default_factory=dict)
+
+    def outcome(self, last_action: Action | None, reason: str) -> Outcome:
+        if reason == "operator":
+            return Outcome("stopped", "stopped by the operator")
+        if reason == "agent":
+            return Outcome("unscored", "the agent stopped at what it took for the object (no ground truth on a real robot)")
+        return Outcome("unscored", "the step budget ran out (no ground truth on a real robot)")
+
+    def close(self) -> None:
+        self.backend.close()
+
+
+class StretchProvider:
+    name = "stretch"
+    label = "Hello Robot Stretch"
+
+    def __init__(self, host: str, agent_deployment: str = "stretch") -> None:
+        self.host = host
+        self.agent_deployment = agent_deployment
+
+    def available(self) -> tuple[bool, str]:
+        return True, ""
+
+    def describe(self) -> Mapping[str, Any]:
+        return {"host": self.host}
+
+    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        unknown = set(options) - {"max_steps"}
+        if unknown:
+            raise OptionsError(f"options {sorted(unknown)} do not apply to the Stretch")
+        max_steps = MAX_STEPS
+        if "max_steps" in options:
+            try:
+                max_steps = int(options["max_steps"])
+            except ValueError:
+                raise OptionsError("max_steps must be an integer") from None
+            if not 1 <= max_steps <= MAX_STEPS:
+                raise OptionsError(f"max_steps must be between 1 and {MAX_STEPS}")
+        return ResolvedRun("stretch", {"host": self.host, "max_steps": max_steps}, None, max_steps)
+
+    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
+        from robot.backend import StretchBackend
+        from robot.config import StretchConfig
+
+        agent, agent_config = build_agent(self.agent_deployment)
+        backend = StretchBackend(goal_rgb, StretchConfig(host=self.host))
+        return StretchSession(backend, agent, agent_config)
