@@ -188,18 +188,28 @@ class GridMap:
         height = cloud.xyz_run[:, 2]
         is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
         h, w = self.shape
-        flat = ij[inside, 0] * w + ij[inside, 1]
+        seen = inside.copy()
+        if cfg.free_fan and len(xy):
+            # Floor seen *beyond* the first obstacle of its column (over a bed, between chair
+            # legs) comes in sparse rows at range; marked explored it would riddle the map with
+            # one-cell frontiers. Like a 2D laser scan, each column counts up to its first hit.
+            r_end = self._fill_fan(obs, cloud.uv_px[:, 0], cloud.xy_base, is_obstacle)
+            col = cloud.uv_px[:, 0] // cfg.depth_stride_px
+            rng = np.hypot(cloud.xy_base[:, 0], cloud.xy_base[:, 1])
+            seen &= is_obstacle | (rng <= r_end[col] + self.resolution_m)
+        flat = ij[seen, 0] * w + ij[seen, 1]
         self.layers.explored.reshape(-1)[flat] = True
-        obst_flat = flat[is_obstacle[inside]]
+        obst_flat = ij[inside & is_obstacle, 0] * w + ij[inside & is_obstacle, 1]
         if len(obst_flat):
             counts = np.bincount(obst_flat, minlength=h * w)
             self.layers.obstacle.reshape(-1)[counts >= cfg.obstacle_min_points] = True
-        if cfg.free_fan and len(xy):
-            self._fill_fan(obs, cloud.uv_px[:, 0], cloud.xy_base, is_obstacle)
         return MapUpdate(len(xy), int(np.count_nonzero(is_obstacle)), n_beyond, n_outside, grew)
 
-    def _fill_fan(self, obs: Observation, u_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray) -> None:
-        """Mark explored the polygon swept by each column's line of sight (see module docstring)."""
+    def _fill_fan(self, obs: Observation, u_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray) -> np.ndarray:
+        """Mark explored the polygon swept by each column's line of sight (see module docstring).
+
+        Returns r_end: (n_cols,) float32 horizontal range of each column's first obstacle, or of
+        its farthest point when it has none (inf for a column without points)."""
         stride = self.config.depth_stride_px
         col = (u_px // stride).astype(np.int64)
         n_cols = int(col.max()) + 1
@@ -210,8 +220,9 @@ class GridMap:
         np.maximum.at(r_free, col[~is_obstacle], rng[~is_obstacle])
         r_end = np.where(np.isfinite(r_obs), r_obs, r_free)
         keep = np.isfinite(r_end) & (r_end > 0)
+        r_end = np.where(keep, r_end, np.inf).astype(np.float32)
         if np.count_nonzero(keep) < 2:
-            return
+            return r_end
         cols = np.nonzero(keep)[0]
         u = cols * stride
         intr = obs.intrinsics
@@ -221,6 +232,7 @@ class GridMap:
         pts = np.stack([obs.pose.x_m + r * np.cos(bearing), obs.pose.y_m + r * np.sin(bearing)], axis=1)
         pts = np.vstack([[obs.pose.x_m, obs.pose.y_m], pts])
         self._fill_polygon(pts, self.layers.explored)
+        return r_end
 
     def _fill_polygon(self, xy_m: np.ndarray, layer: np.ndarray) -> None:
         """Rasterise a run-frame polygon (N, 2) into ``layer`` (clipped to the grid)."""
@@ -237,15 +249,29 @@ class GridMap:
         layer[lo[1] : hi[1], lo[0] : hi[0]] |= buf.astype(bool)
 
     def mark_visited(self, xy_from: tuple[float, float], xy_to: tuple[float, float]) -> None:
-        """Cells on the segment the robot centre travelled; the footprint is observed free."""
-        self.ensure_contains((min(xy_from[0], xy_to[0]), min(xy_from[1], xy_to[1])),
-                             (max(xy_from[0], xy_to[0]), max(xy_from[1], xy_to[1])))
+        """Cells on the segment the robot centre travelled. The robot's own footprint at
+        ``xy_to`` is free space: collision marks there were misplaced (a move blocked by
+        something at the side marks the front) and obstacle cells there are quantisation
+        artefacts; both are cleared within the radius less one cell."""
+        r = self.config.robot_radius_m
+        self.ensure_contains((min(xy_from[0], xy_to[0]) - r, min(xy_from[1], xy_to[1]) - r),
+                             (max(xy_from[0], xy_to[0]) + r, max(xy_from[1], xy_to[1]) + r))
         n = max(2, int(math.ceil(math.dist(xy_from, xy_to) / (0.5 * self.resolution_m))) + 1)
         seg = np.linspace(xy_from, xy_to, n)
         ij = self.xy_to_ij(seg)
         ij = ij[self.in_bounds(ij)]
         self.layers.visited[ij[:, 0], ij[:, 1]] = True
         self.layers.explored[ij[:, 0], ij[:, 1]] = True
+        ci, cj = self.xy_to_ij(np.array([xy_to]))[0]
+        rc = (r - self.resolution_m) / self.resolution_m
+        n = int(math.ceil(rc))
+        ii, jj = np.mgrid[-n : n + 1, -n : n + 1]
+        inside = ii * ii + jj * jj <= rc * rc
+        cells = np.stack([ii[inside] + ci, jj[inside] + cj], axis=1)
+        cells = cells[self.in_bounds(cells)]
+        for layer in (self.layers.collision, self.layers.obstacle):
+            layer[cells[:, 0], cells[:, 1]] = False
+        self.layers.explored[cells[:, 0], cells[:, 1]] = True
 
     def mark_collision(self, pose: Pose2D) -> None:
         """A forward move failed: something the camera cannot see (below its field of view,

@@ -96,6 +96,8 @@ class ModIINAgent:
         self._confirmed_xy: list[tuple[float, float]] = []  # close-range detections (verification)
         self._scan_left: int = -1  # >=0 while scanning at a stop point
         self._unreachable_goal = 0
+        self._rescans_left = self.config.policy.max_rescans
+        self._rescan_steps = 0
         self._record = None
 
     def act(self, obs: Observation) -> Action:
@@ -285,7 +287,19 @@ class ModIINAgent:
                 self.explorer.blacklist_target(grid, exc.reason)
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
+            self._rescan_steps = 0
             return plan.action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
+        # No reachable frontier. Collision marks are guesses (the blocked side of a move is
+        # unknown): drop them once and look around again before giving up.
+        if self._rescans_left > 0:
+            if self._rescan_steps == 0:
+                self.grid.layers.collision[:] = False
+                log.info("no reachable frontier: cleared collision marks, looking around again")
+            self._rescan_steps += 1
+            if self._rescan_steps >= self.config.policy.look_around_turns or self._rescan_steps >= 12:
+                self._rescans_left -= 1
+                self._rescan_steps = 0
+            return Action.TURN_LEFT, "rescan", "no reachable frontier: looking around again", None, None, error or "no_frontier"
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Action.STOP, "exhausted", "no reachable frontier and no goal candidate", None, None, error or "no_frontier"
 

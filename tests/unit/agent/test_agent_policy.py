@@ -103,7 +103,8 @@ def test_without_verification_the_false_positive_wins():
 def test_collision_marks_when_forward_fails():
     boxes, goal, _ = two_rooms()
     world = BoxWorld(boxes, Pose2D(-2.75, 0.0, math.pi), goal)  # facing the west wall, 8 cm from contact
-    agent = ModIINAgent(oracle_config(look_around_turns=0), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+    agent = ModIINAgent(oracle_config(look_around_turns=0, max_rescans=0), oracle_reid=world.goal_visible,
+                        oracle_ego_mask=world.goal_mask)
     obs = world.observe()
     agent.reset(obs.goal_image)
     agent._prev_pose, agent._prev_action = obs.pose, Action.MOVE_FORWARD  # as if a forward move just failed
