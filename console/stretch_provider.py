@@ -41,9 +41,12 @@ class StretchProvider:
     name = "stretch"
     label = "Hello Robot Stretch"
 
-    def __init__(self, host: str, agent_deployment: str = "stretch") -> None:
+    def __init__(self, host: str, agent_deployment: str = "stretch", robot_config: Any | None = None) -> None:
+        """``robot_config``: a ``robot.config.StretchConfig`` for ports, timeouts and the head
+        pose (default: the bridge's ports); its host is replaced by ``host``."""
         self.host = host
         self.agent_deployment = agent_deployment
+        self.robot_config = robot_config
 
     def available(self) -> tuple[bool, str]:
         return True, ""
@@ -66,9 +69,12 @@ class StretchProvider:
         return ResolvedRun("stretch", {"host": self.host, "max_steps": max_steps}, None, max_steps)
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
+        import dataclasses
+
         from robot.backend import StretchBackend
         from robot.config import StretchConfig
 
         agent, agent_config = build_agent(self.agent_deployment)
-        backend = StretchBackend(goal_rgb, StretchConfig(host=self.host))
+        config = StretchConfig(host=self.host) if self.robot_config is None else dataclasses.replace(self.robot_config, host=self.host)
+        backend = StretchBackend(goal_rgb, config)
         return StretchSession(backend, agent, agent_config)

@@ -3,6 +3,7 @@
 Rehearse a robot run on one machine::
 
     imgnav fake-stretch --scene-seed 3              # a PyBullet home, random free start
+    imgnav fake-stretch --scene-seed 0 --rooms 3    # the console's simulator home-0
     imgnav fake-stretch --episodes data/episodes/val --episode val-0007
     imgnav fake-stretch --world box                 # an empty analytic room (no PyBullet)
 
@@ -28,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_argument_group("world")
     where.add_argument("--world", choices=("sim", "box"), default="sim", help="PyBullet home (default) or an empty box room")
     where.add_argument("--scene-seed", type=int, default=0, help="home to generate (with --world sim)")
+    where.add_argument("--rooms", type=int, help="rooms of the generated home (the console's simulator homes have 3)")
     where.add_argument("--episodes", help="episode set directory: start where an episode starts")
     where.add_argument("--episode", help="episode id within --episodes")
     where.add_argument("--start", type=float, nargs=3, metavar=("X", "Y", "YAW"), help="start pose in the home frame (m, m, rad)")
@@ -56,7 +58,7 @@ def build_world(args: argparse.Namespace):
         if not args.episode:
             raise SystemExit("--episodes needs --episode")
         return SimFakeWorld.from_episode(args.episodes, args.episode)
-    return SimFakeWorld.from_seed(args.scene_seed, start_world=start)
+    return SimFakeWorld.from_seed(args.scene_seed, start_world=start, n_rooms=args.rooms)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -36,11 +36,16 @@ class SimFakeWorld:
         self.start_world = start_world
 
     @classmethod
-    def from_seed(cls, scene_seed: int, start_world: Pose2D | None = None, rng_seed: int = 0) -> "SimFakeWorld":
-        """A generated home; without a start, a random navigable cell well away from walls."""
+    def from_seed(
+        cls, scene_seed: int, start_world: Pose2D | None = None, n_rooms: int | None = None, rng_seed: int = 0
+    ) -> "SimFakeWorld":
+        """A generated home (``n_rooms`` None: the generator's choice, as ``SimWorld.from_seed``;
+        the console's simulator homes use 3); without a start, a random navigable cell well
+        away from walls."""
+        from sim.scene_gen import generate_home
         from sim.world import SimWorld
 
-        world = SimWorld.from_seed(scene_seed)
+        world = SimWorld(generate_home(scene_seed, n_rooms=n_rooms))
         try:
             if start_world is None:
                 start_world = random_start(world, np.random.default_rng(rng_seed))

@@ -1,0 +1,205 @@
+"""Whole runs through the console (API, run manager, store, viewer) on the fake Stretch.
+
+The fake robot speaks the stretch_ai bridge protocol on free loopback ports; the console's
+Stretch backend choice drives it with the real Mod-IIN agent (``stretch`` deployment).
+Runs on a real robot are unscored, so success is checked against the fake's ground truth:
+the robot's final pose in the home must be within 0.1 m of a goal viewpoint (DESIGN 1).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from agent.types import VIEWPOINT_SUCCESS_RADIUS_M, Action, Pose2D
+from console.api import create_app
+from console.context import Console, ConsoleConfig
+from console.stretch_provider import StretchProvider
+from console.viewer import ViewerConfig
+from robot.config import StretchConfig
+from robot.fake_server import FakeKnobs, FakeStretch
+from robot.fake_world import BoxWorld
+
+FINAL = ("finished", "stopped", "failed", "interrupted")
+HOME_SEED = 0  # the console's simulator home-0 (3 rooms)
+
+
+def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = fn()
+        if until(value):
+            return value
+        assert time.monotonic() < deadline, f"{what} not reached within {timeout_s} s; last value {value!r}"
+        time.sleep(0.05)
+
+
+def png(rgb: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def stretch_console(data_dir: Path, fake: FakeStretch, viewer: bool = False, **robot: Any) -> Console:
+    obs, action, state = fake.ports
+    config = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
+    provider = StretchProvider("127.0.0.1", robot_config=config)
+    return Console(ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider})
+
+
+def start_run(client: TestClient, goal_rgb: np.ndarray, max_steps: int) -> str:
+    resp = client.post(
+        "/api/runs",
+        files={"goal_image": ("goal.png", png(goal_rgb), "image/png")},
+        data={"backend": "stretch", "max_steps": str(max_steps)},
+    )
+    assert resp.status_code == 201, resp.text
+    return resp.json()["id"]
+
+
+def wait_final(client: TestClient, run_id: str, timeout_s: float) -> dict:
+    return poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in FINAL, timeout_s, "run end")
+
+
+# --- a whole run that reaches the goal ------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def home_scenario() -> Iterator[dict]:
+    """The simulator home, a large goal instance, a start 1.5-2.5 m away facing away from it, a goal
+    image of it and its viewpoints -- chosen deterministically from the generated home."""
+    from scipy.ndimage import binary_erosion
+
+    from sim.goals import sample_goal_images
+    from sim.navigation import instance_viewpoints
+    from sim.scene_gen import generate_home
+    from sim.world import SimWorld
+
+    world = SimWorld(generate_home(HOME_SEED, n_rooms=3))
+    grid = world.navigable_grid(0.05)
+    clear = binary_erosion(grid.navigable, iterations=5)
+    xs, ys = grid.cell_centres()
+    for inst in sorted(world.home.instances, key=lambda o: (o.category not in ("couch", "bed"), o.object_id)):
+        cx, cy, _ = inst.center_xyz_m()
+        cells = np.argwhere(clear & (np.hypot(xs - cx, ys - cy) >= 1.5) & (np.hypot(xs - cx, ys - cy) <= 2.5))
+        goals = sample_goal_images(world, inst.object_id, 1, (HOME_SEED, inst.object_id)) if len(cells) else []
+        viewpoints = instance_viewpoints(world, inst.object_id)
+        if len(cells) and goals and len(viewpoints):
+            i, j = cells[len(cells) // 2]
+            x, y = float(xs[i, j]), float(ys[i, j])
+            yield {
+                "world": world,
+                "instance": inst,
+                # facing away: the agent has to look around before it sees the object
+                "start": Pose2D(x, y, math.atan2(cy - y, cx - x) + math.pi),
+                "goal_rgb": goals[0].rgb,
+                "viewpoints": viewpoints,
+            }
+            world.close()
+            return
+    world.close()
+    pytest.fail("home has no usable goal instance")
+
+
+def test_console_run_on_the_fake_stretch_reaches_the_goal(home_scenario: dict, tmp_path: Path) -> None:
+    from robot.fake_sim import SimFakeWorld
+
+    fake = FakeStretch(SimFakeWorld(home_scenario["world"], home_scenario["start"]), obs_port=0, action_port=0, state_port=0)
+    fake.start()
+    console = stretch_console(tmp_path / "data", fake, viewer=True)
+    try:
+        with TestClient(create_app(console)) as client:
+            backends = {b["name"]: b for b in client.get("/api/config").json()["backends"]}
+            assert backends["stretch"]["available"] and backends["stretch"]["label"] == "Hello Robot Stretch"
+            t0 = time.monotonic()
+            run_id = start_run(client, home_scenario["goal_rgb"], max_steps=80)
+            done = wait_final(client, run_id, timeout_s=170)
+            wall_s = time.monotonic() - t0
+            assert done["status"] == "finished", done
+            assert done["outcome"] == "unscored" and "stopped" in done["outcome_detail"], done
+            steps = client.get(f"/api/runs/{run_id}", params={"steps": True}).json()["steps"]
+            assert len(steps) == done["n_steps"] > 0 and steps[-1]["action"] == Action.STOP
+            # ground truth from the fake robot: stopped at a goal viewpoint
+            p = fake.pose_world
+            vp = home_scenario["viewpoints"]
+            dist_m = float(np.min(np.hypot(vp[:, 0] - p.x_m, vp[:, 1] - p.y_m)))
+            assert dist_m <= VIEWPOINT_SUCCESS_RADIUS_M, (p, dist_m)
+            # the run's start-relative poses are the fake's moves, composed
+            xyt = [a for a in fake.actions if "xyt" in a]
+            assert len(xyt) == sum(1 for s in steps if s["action"] != Action.STOP)
+            last = steps[-1]
+            rel = p.relative_to(home_scenario["start"])
+            assert math.hypot(last["x_m"] - rel.x_m, last["y_m"] - rel.y_m) < 1e-6
+            # streamed to the viewer like a simulator run
+            assert console.viewer is not None and console.viewer.n_published > 0
+            print(
+                f"\nconsole run on the fake Stretch: {done['outcome']} after {done['n_steps']} steps, "
+                f"{dist_m:.2f} m from the nearest viewpoint; mean step {done['timings'].get('mean_step_ms', 0):.0f} ms "
+                f"(agent {done['timings'].get('agent_mean_ms', {}).get('total', float('nan')):.0f} ms); wall {wall_s:.1f} s"
+            )
+    finally:
+        console.close()
+        fake.close()
+
+
+# --- faults end the run with their reason recorded ------------------------------------
+
+
+def _box_fake(**knobs: Any) -> FakeStretch:
+    return FakeStretch(BoxWorld(start_world=Pose2D(0.0, 0.0, 0.3)), obs_port=0, action_port=0, state_port=0, knobs=FakeKnobs(**knobs)).start()
+
+
+def _after_actions(fake: FakeStretch, n: int, act: Callable[[], None]) -> threading.Thread:
+    """Trigger a fault once the fake has handled ``n`` actions (posture and head count)."""
+
+    def watch() -> None:
+        deadline = time.monotonic() + 120
+        while len(fake.actions) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        act()
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.mark.parametrize(
+    "fault, knobs, trigger, reason",
+    [
+        ("runstopped at start", {"runstopped": True}, None, "runstopped"),
+        ("not homed", {"homed": False}, None, "not_homed"),
+        ("runstop mid-run", {}, ("runstopped", True), "runstopped"),
+        ("silence mid-run", {}, ("silent", True), "disconnected"),
+        ("dropped acks", {}, ("drop_acks", True), "ack_timeout"),
+    ],
+)
+def test_each_fault_fails_the_run_cleanly_with_its_reason(fault, knobs, trigger, reason, tmp_path: Path) -> None:
+    fake = _box_fake(**knobs)
+    console = stretch_console(tmp_path / "data", fake, ack_timeout_s=2.0, resend_interval_s=0.5)
+    try:
+        if trigger is not None:
+            _after_actions(fake, 4, lambda: setattr(fake.knobs, trigger[0], trigger[1]))  # posture, head, 2 moves
+        with TestClient(create_app(console)) as client:
+            photo = np.random.default_rng(0).integers(0, 255, (300, 400, 3), dtype=np.uint8)  # any phone photo
+            run_id = start_run(client, photo, max_steps=200)
+            done = wait_final(client, run_id, timeout_s=90)
+            assert done["status"] == "failed", done
+            assert done["outcome"] == "error" and f"({reason})" in done["outcome_detail"], done
+            assert f"({reason})" in done["error"]
+            if trigger is None:
+                assert fake.actions == [] and done["n_steps"] == 0  # refused before sending anything
+            else:
+                assert done["n_steps"] >= 1  # the fault came after the first moves
+            assert console.manager.active_run_id is None  # the console is free for the next run
+    finally:
+        console.close()
+        fake.close()
