@@ -18,7 +18,7 @@ import logging
 import signal
 import threading
 
-from agent.types import Pose2D
+from agent.types import VIEWPOINT_SUCCESS_RADIUS_M, Pose2D
 from robot.fake_server import FakeKnobs, FakeStretch
 from robot.protocol import ACTION_PORT, OBS_PORT, STATE_PORT
 
@@ -78,6 +78,9 @@ def run(args: argparse.Namespace) -> int:
             f"state {fake.ports[2]}; start {world.start_world}. Ctrl-C to stop.",
             flush=True,
         )
+        goal_image = getattr(world, "goal_image_path", None)
+        if goal_image is not None:
+            print(f"the episode's goal image (upload it as the goal photo): {goal_image}", flush=True)
         if args.silent_after_s is not None and not stop.wait(args.silent_after_s):
             knobs.silent = True
             log.warning("fake Stretch: silent from now on (--silent-after-s)")
@@ -85,5 +88,9 @@ def run(args: argparse.Namespace) -> int:
             log.info("fake Stretch: pose %s, last step %d", fake.pose_world, fake.handled_step)
     finally:
         fake.close()
+        distance = getattr(world, "distance_to_goal_m", lambda pose: None)(fake.pose_world)
+        if distance is not None:
+            verdict = "at" if distance <= VIEWPOINT_SUCCESS_RADIUS_M else "not at"
+            print(f"final pose {fake.pose_world}: {distance:.2f} m from the nearest goal viewpoint ({verdict} the goal)", flush=True)
         world.close()
     return 0

@@ -24,10 +24,14 @@ log = logging.getLogger(__name__)
 class SimFakeWorld:
     """``robot.fake_world.FakeWorld`` backed by a PyBullet home."""
 
-    def __init__(self, world, start_world: Pose2D) -> None:
+    def __init__(self, world, start_world: Pose2D, viewpoints_xy_m: np.ndarray | None = None) -> None:
+        """viewpoints_xy_m: (N, 2) world xy of the goal viewpoints when an episode is known
+        (for reporting how a rehearsal ended), else None."""
         from sim.camera import SIM_CAMERA
 
         self.sim = world
+        self.viewpoints_xy_m = viewpoints_xy_m
+        self.goal_image_path: Path | None = None
         self.camera = SIM_CAMERA
         self.intrinsics: Intrinsics = SIM_CAMERA.intrinsics
         self.camera_height_m: float = SIM_CAMERA.height_m
@@ -61,16 +65,25 @@ class SimFakeWorld:
         from sim.world import SimWorld
 
         episodes = load_episode_set(Path(episodes_dir))
-        found = [e for e in episodes if e.id == episode_id]
-        if not found:
-            raise ValueError(f"no episode {episode_id!r} in {episodes_dir}")
-        episode = found[0]
+        try:
+            episode = episodes.by_id(episode_id)
+        except KeyError as exc:
+            raise ValueError(str(exc)) from None
         world = SimWorld.from_seed(episode.scene_seed)
         try:
-            return cls(world, Pose2D(*episode.start_pose_world))
+            fake_world = cls(world, episode.start_pose_world, episode.viewpoints_array())
         except BaseException:
             world.close()
             raise
+        fake_world.goal_image_path = episodes.goal_image_path(episode)
+        return fake_world
+
+    def distance_to_goal_m(self, pose_world: Pose2D) -> float | None:
+        """Distance from ``pose_world`` to the nearest goal viewpoint (None without an episode)."""
+        if self.viewpoints_xy_m is None or len(self.viewpoints_xy_m) == 0:
+            return None
+        vp = np.asarray(self.viewpoints_xy_m, dtype=np.float64)
+        return float(np.min(np.hypot(vp[:, 0] - pose_world.x_m, vp[:, 1] - pose_world.y_m)))
 
     def render(self, pose_world: Pose2D, tilt_rad: float) -> tuple[np.ndarray, np.ndarray]:
         camera = dataclasses.replace(self.camera, pitch_rad=float(tilt_rad))

@@ -41,10 +41,12 @@ def _start(*extra: str) -> tuple[subprocess.Popen, tuple[int, int, int]]:
     raise AssertionError("fake-stretch did not start:\n" + "".join(lines))
 
 
-def _stop(proc: subprocess.Popen) -> int:
+def _stop(proc: subprocess.Popen) -> tuple[int, str]:
+    """Ctrl-C; the exit code and the rest of the output."""
     proc.send_signal(signal.SIGINT)
     try:
-        return proc.wait(timeout=30)
+        out, _ = proc.communicate(timeout=30)
+        return proc.returncode, out
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -66,7 +68,7 @@ def test_fake_stretch_cli_serves_a_simulated_home_until_ctrl_c() -> None:
             assert obs_after.pose.yaw_rad == pytest.approx(math.radians(30), abs=1e-6)
             assert not np.array_equal(obs_after.rgb, first.rgb)  # the view turned
     finally:
-        assert _stop(proc) == 0
+        assert _stop(proc)[0] == 0
 
 
 def test_fake_stretch_cli_runstopped_is_refused() -> None:
@@ -78,4 +80,29 @@ def test_fake_stretch_cli_runstopped_is_refused() -> None:
                 backend.reset()
             assert info.value.reason == "runstopped"
     finally:
-        assert _stop(proc) == 0
+        assert _stop(proc)[0] == 0
+
+
+def test_fake_stretch_cli_starts_at_an_episode_start_and_reports_the_distance_to_its_goal(tmp_path) -> None:
+    from sim.episodes import load_episode_set
+
+    out = tmp_path / "episodes"
+    subprocess.run(
+        [sys.executable, "-m", "console.cli", "episodes", "--split", "val", "--count", "1", "--out", str(out), "--workers", "1"],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
+    episode = load_episode_set(out).episodes[0]
+    proc, (obs, act, state) = _start("--episodes", str(out), "--episode", episode.episode_id)
+    try:
+        config = StretchConfig(obs_port=obs, action_port=act, state_port=state, connect_timeout_s=20)
+        with StretchBackend(np.zeros((30, 40, 3), np.uint8), config) as backend:
+            assert backend.reset().pose.distance_to(Pose2D()) < 1e-9
+            backend.apply(Action.STOP)
+    finally:
+        code, rest = _stop(proc)
+    assert code == 0
+    assert "m from the nearest goal viewpoint" in rest, rest
+    expected = min(math.hypot(x - episode.start_pose_world.x_m, y - episode.start_pose_world.y_m) for x, y in episode.viewpoints_xy_m)
+    assert f"{expected:.2f} m from the nearest goal viewpoint" in rest
