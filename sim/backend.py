@@ -1,0 +1,259 @@
+"""``SimBackend``: the simulator behind ``agent.types.Backend`` (DESIGN section 4).
+
+Built from a ``SimWorld`` and either an ``Episode`` (with its goal image) or a
+free world start pose plus any goal image (an uploaded photo). In the second
+case the target is unknown and the run is unscored, unless a known target
+instance id is given, in which case viewpoints and geodesics are computed on the
+fly and ``result()`` scores the run.
+
+* ``reset()`` starts at the start pose; ``Observation.pose`` is relative to it.
+* ``apply(action)``: one discrete action; STOP ends the episode; so does the
+  1000-step budget. Applying after the end raises ``BackendError("episode_over")``.
+* ``oracle``: a separate ``SimOracle`` with ground truth (goal mask in the current
+  frame, goal position, viewpoints, navigable map, world pose). Default agents are
+  never given it; oracle ablations, metrics and failure analysis are.
+* ``result()``: ``EpisodeMetrics`` once the episode is over (None if unscored).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from agent.types import MAX_STEPS, Action, BackendError, Observation, Pose2D
+from sim.camera import SIM_CAMERA, CameraSpec, Render
+from sim.episodes import Episode, read_rgb
+from sim.geometry import NavGrid
+from sim.metrics import EpisodeMetrics, episode_metrics
+from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, instance_viewpoints, reachable_component
+from sim.world import SimWorld
+
+log = logging.getLogger(__name__)
+
+
+class SimOracle:
+    """Ground truth about the current run. Frames: ``*_world`` in the home's frame,
+    ``*_start`` in the run's start-relative frame (the agent's frame)."""
+
+    def __init__(self, backend: "SimBackend") -> None:
+        self._b = backend
+
+    # --- the robot ---
+    @property
+    def pose_world(self) -> Pose2D:
+        return self._b.pose_world
+
+    @property
+    def start_pose_world(self) -> Pose2D:
+        return self._b.start_pose_world
+
+    @property
+    def world(self) -> SimWorld:
+        return self._b.world
+
+    def collides_world(self, x_m: float, y_m: float) -> bool:
+        return self._b.world.collides(x_m, y_m)
+
+    def move_world(self, pose_world: Pose2D, action: Action) -> tuple[Pose2D, bool]:
+        """The simulator's exact motion model (for planners that must replay exactly)."""
+        return self._b.world.move(pose_world, action)
+
+    @property
+    def navigable(self) -> NavGrid:
+        """Ground-truth navigable grid (world frame, 0.05 m)."""
+        return self._b.world.navigable_grid(GRID_RESOLUTION_M)
+
+    # --- the goal ---
+    @property
+    def target_known(self) -> bool:
+        return self._b.goal_instance_id is not None
+
+    @property
+    def goal_instance_id(self) -> int | None:
+        return self._b.goal_instance_id
+
+    @property
+    def goal_category(self) -> str | None:
+        tid = self._b.goal_instance_id
+        return None if tid is None else self._b.world.home.instance(tid).category
+
+    @property
+    def goal_position_world(self) -> np.ndarray | None:
+        """(3,) float64 centre of the goal instance's bounding box, world frame."""
+        tid = self._b.goal_instance_id
+        return None if tid is None else np.array(self._b.world.home.instance(tid).center_xyz_m())
+
+    @property
+    def goal_position_start(self) -> np.ndarray | None:
+        """(3,) goal centre in the start-relative frame."""
+        g = self.goal_position_world
+        if g is None:
+            return None
+        xy = self._b.start_pose_world.inverse().transform_xy(g[None, :2])[0]
+        return np.array([xy[0], xy[1], g[2]])
+
+    @property
+    def viewpoints_world(self) -> np.ndarray:
+        """(N, 2) float64 goal viewpoints, world frame (empty when the target is unknown)."""
+        return self._b.viewpoints_world
+
+    @property
+    def viewpoints_start(self) -> np.ndarray:
+        return self._b.start_pose_world.inverse().transform_xy(self._b.viewpoints_world) if len(self._b.viewpoints_world) else np.zeros((0, 2))
+
+    def geodesic_to_goal_m(self, x_world_m: float, y_world_m: float) -> float:
+        """Shortest-path distance from a world position to the nearest viewpoint (inf if unreachable)."""
+        field = self._b.goal_field()
+        if field is None:
+            return math.inf
+        return geodesic_at(field, self.navigable, x_world_m, y_world_m)
+
+    def goal_field(self) -> np.ndarray | None:
+        """(H, W) float64 geodesic metres to the nearest viewpoint over ``navigable`` (None if unscored)."""
+        return self._b.goal_field()
+
+    # --- the current frame ---
+    def instance_ids(self) -> np.ndarray:
+        """(H, W) int32 instance id per pixel of the current observation (-1: none)."""
+        return self._b.current_render().instance_ids
+
+    def goal_mask(self) -> np.ndarray:
+        """(H, W) bool: pixels of the goal instance in the current observation (all False if unknown)."""
+        ids = self.instance_ids()
+        tid = self._b.goal_instance_id
+        return np.zeros(ids.shape, dtype=bool) if tid is None else ids == tid
+
+
+class SimBackend:
+    """One simulated run. The world is shared and not closed by ``close()`` unless ``owns_world``."""
+
+    def __init__(self, world: SimWorld, goal_image: np.ndarray, start_pose_world: Pose2D,
+                 goal_instance_id: int | None = None, viewpoints_xy_m: np.ndarray | None = None,
+                 shortest_path_m: float | None = None, camera: CameraSpec = SIM_CAMERA, max_steps: int = MAX_STEPS,
+                 owns_world: bool = False, episode: Episode | None = None) -> None:
+        goal_image = np.asarray(goal_image)
+        if goal_image.ndim != 3 or goal_image.shape[2] != 3 or goal_image.dtype != np.uint8:
+            raise ValueError("goal_image must be (h, w, 3) uint8 RGB")
+        if world.collides(start_pose_world.x_m, start_pose_world.y_m):
+            raise ValueError(f"start pose {start_pose_world} collides with the scene")
+        self.world = world
+        self.goal_image = goal_image
+        self.start_pose_world = start_pose_world
+        self.goal_instance_id = goal_instance_id
+        self.camera = camera
+        self.max_steps = max_steps
+        self.owns_world = owns_world
+        self.episode = episode
+        if goal_instance_id is not None and viewpoints_xy_m is None:
+            free = reachable_component(world.navigable_grid(GRID_RESOLUTION_M), (start_pose_world.x_m, start_pose_world.y_m))
+            viewpoints_xy_m = instance_viewpoints(world, goal_instance_id, free)
+        self.viewpoints_world = np.zeros((0, 2)) if viewpoints_xy_m is None else np.asarray(viewpoints_xy_m, float).reshape(-1, 2)
+        self._shortest_path_m = shortest_path_m
+        self._field: np.ndarray | None = None
+        self.oracle = SimOracle(self)
+        self._closed = False
+        self._reset_state()
+
+    @classmethod
+    def for_episode(cls, world: SimWorld, episode: Episode, goal_image: np.ndarray | str | Path, **kw) -> "SimBackend":
+        """A backend for a stored episode; ``goal_image`` is the array or its PNG path."""
+        if world.home.seed != episode.scene_seed:
+            raise ValueError(f"episode {episode.episode_id} is in scene {episode.scene_seed}, world is {world.home.seed}")
+        img = read_rgb(goal_image) if isinstance(goal_image, (str, Path)) else goal_image
+        return cls(world, img, episode.start_pose_world, episode.goal_instance_id, episode.viewpoints_array(),
+                   episode.geodesic_distance_m, episode=episode, **kw)
+
+    def _reset_state(self) -> None:
+        self.pose_world = self.start_pose_world
+        self.steps = 0
+        self.path_length_m = 0.0
+        self.done = False
+        self.called_stop = False
+        self.stop_reason: str | None = None
+        self.trajectory_world: list[Pose2D] = [self.start_pose_world]
+        self.actions: list[Action] = []
+        self._render: Render | None = None
+        self._render_pose: Pose2D | None = None
+
+    # --- Backend protocol ---
+    def reset(self) -> Observation:
+        if self._closed:
+            raise BackendError("closed", "backend is closed")
+        self._reset_state()
+        return self.observe()
+
+    def current_render(self) -> Render:
+        if self._render is None or self._render_pose != self.pose_world:
+            self._render = self.world.render(self.pose_world, self.camera)
+            self._render_pose = self.pose_world
+        return self._render
+
+    def observe(self) -> Observation:
+        if self._closed:
+            raise BackendError("closed", "backend is closed")
+        r = self.current_render()
+        # exactly (0, 0, 0) at the start (the Backend contract), not 1e-16 from the frame change
+        pose = Pose2D() if self.pose_world == self.start_pose_world else self.pose_world.relative_to(self.start_pose_world)
+        return Observation(
+            rgb=r.rgb, depth_m=r.depth_m, pose=pose,
+            intrinsics=self.camera.intrinsics, goal_image=self.goal_image, camera_height_m=self.camera.height_m,
+            camera_tilt_rad=self.camera.pitch_rad, step=self.steps, timestamp_s=time.time(),
+        )
+
+    def apply(self, action: Action) -> None:
+        if self._closed:
+            raise BackendError("closed", "backend is closed")
+        if self.done:
+            raise BackendError("episode_over", f"the episode ended ({self.stop_reason}); reset() to start again")
+        action = Action(action)
+        self.steps += 1
+        self.actions.append(action)
+        if action == Action.STOP:
+            self.called_stop = True
+            self.done = True
+            self.stop_reason = "stop"
+        else:
+            new, moved = self.world.move(self.pose_world, action)
+            if moved and action == Action.MOVE_FORWARD:
+                self.path_length_m += math.hypot(new.x_m - self.pose_world.x_m, new.y_m - self.pose_world.y_m)
+            self.pose_world = new
+            if self.steps >= self.max_steps:
+                self.done = True
+                self.stop_reason = "max_steps"
+        self.trajectory_world.append(self.pose_world)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self.owns_world:
+                self.world.close()
+
+    # --- scoring ---
+    def goal_field(self) -> np.ndarray | None:
+        if self.goal_instance_id is None or len(self.viewpoints_world) == 0:
+            return None
+        if self._field is None:
+            grid = self.world.navigable_grid(GRID_RESOLUTION_M)
+            self._field = geodesic_field(grid, self.viewpoints_world)
+        return self._field
+
+    @property
+    def shortest_path_m(self) -> float:
+        if self._shortest_path_m is None:
+            self._shortest_path_m = self.oracle.geodesic_to_goal_m(self.start_pose_world.x_m, self.start_pose_world.y_m)
+        return self._shortest_path_m
+
+    def result(self) -> EpisodeMetrics | None:
+        """The episode's metrics once it is over; None if unscored or still running."""
+        if self.goal_instance_id is None or not self.done:
+            return None
+        p = self.pose_world
+        return episode_metrics(
+            called_stop=self.called_stop, stop_xy_m=(p.x_m, p.y_m), viewpoints_xy_m=self.viewpoints_world,
+            steps=self.steps, max_steps=self.max_steps, path_length_m=self.path_length_m,
+            shortest_path_m=self.shortest_path_m, stop_geodesic_m=self.oracle.geodesic_to_goal_m(p.x_m, p.y_m),
+        )

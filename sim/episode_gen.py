@@ -1,0 +1,190 @@
+"""Generating InstanceImageNav episode sets (``imgnav episodes``).
+
+Scenes: the set (split, seed) uses scene seeds ``scene_seed_for(split, seed, k)``
+for k = 0, 1, ... (disjoint ranges per split). Each scene yields up to
+``episodes_per_scene`` episodes, one per goal instance, cycling through the
+categories so rarer ones (toilet, tv, couch, bed) are well represented.
+
+Difficulty: episodes cycle through geodesic-distance bins (easy 1.5-4 m, medium
+4-8 m, hard > 8 m); medium and hard starts are taken in another room than the
+goal when the home allows, so many episodes cross rooms.
+
+Validity: the start is collision-free, in the same free component as the
+viewpoints, and the goal region is reachable on the robot's discrete motion
+lattice (a lattice A* search with the simulator's own collision-checked step).
+Episodes whose region the lattice cannot reach would be unsolvable with the
+task's actions, so they are not generated.
+
+Deterministic: every random choice comes from RNGs seeded by (split, seed, k);
+floats are rounded before they are used, so the JSON and PNGs are identical
+whatever the number of workers.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agent.types import Pose2D
+from sim.episodes import SPLITS, Episode, r4, save_episode_set, scene_seed_for, write_rgb
+from sim.goals import sample_goal_images
+from sim.lattice import ViewpointGoal, plan_to_goal
+from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, instance_viewpoints, reachable_component
+from sim.scene_gen import GENERATOR_VERSION
+from sim.world import SimWorld
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class EpisodeGenConfig:
+    episodes_per_scene: int = 5
+    difficulty_bins_m: tuple[tuple[str, float, float], ...] = (("easy", 1.5, 4.0), ("medium", 4.0, 8.0), ("hard", 8.0, 1e9))
+    min_viewpoints: int = 8
+    start_attempts: int = 25
+    # one episode in this many may have a goal image that also shows a same-category instance
+    distractor_every: int = 5
+    validate_weight: float = 2.0
+
+
+def _scene_episodes(split: str, set_seed: int, k: int, out_dir: Path, cfg: EpisodeGenConfig) -> list[Episode]:
+    scene_seed = scene_seed_for(split, set_seed, k)
+    rng = np.random.default_rng([SPLITS.index(split), set_seed, k, 4242])
+    world = SimWorld.from_seed(scene_seed)
+    try:
+        return _generate(world, split, set_seed, k, scene_seed, rng, out_dir, cfg)
+    finally:
+        world.close()
+
+
+def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: int, rng: np.random.Generator,
+              out_dir: Path, cfg: EpisodeGenConfig) -> list[Episode]:
+    grid = world.navigable_grid(GRID_RESOLUTION_M)
+    comp = reachable_component(grid)
+    home = world.home
+    by_cat: dict[str, list[int]] = {}
+    for inst in home.instances:
+        by_cat.setdefault(inst.category, []).append(inst.object_id)
+    cats = sorted(by_cat)
+    rng.shuffle(cats)
+    for c in cats:
+        rng.shuffle(by_cat[c])
+    order: list[int] = []
+    while any(by_cat.values()):  # round-robin over categories
+        for c in cats:
+            if by_cat[c]:
+                order.append(by_cat[c].pop())
+    free_ij = np.argwhere(comp)
+    free_xy = grid.ij_to_xy(free_ij)
+    episodes: list[Episode] = []
+    for inst_id in order:
+        if len(episodes) >= cfg.episodes_per_scene:
+            break
+        j = len(episodes)
+        vp = np.round(instance_viewpoints(world, inst_id, comp), 4)
+        if len(vp) < cfg.min_viewpoints:
+            continue
+        field = geodesic_field(grid, vp, comp)
+        goal_room = home.room_at(*home.instance(inst_id).center_xyz_m()[:2])
+        name, lo, hi = cfg.difficulty_bins_m[(k * cfg.episodes_per_scene + j) % len(cfg.difficulty_bins_m)]
+        d = field[free_ij[:, 0], free_ij[:, 1]]
+        in_bin = (d >= lo) & (d < hi)
+        if not in_bin.any():
+            in_bin = d >= cfg.difficulty_bins_m[0][1]
+            name = "any"
+        cand = np.flatnonzero(in_bin)
+        if name in ("medium", "hard") and goal_room is not None:
+            other = [c for c in cand if home.room_at(*free_xy[c]) is not goal_room]
+            if other:
+                cand = np.array(other)
+        goal = ViewpointGoal(vp)
+        start = None
+        for _ in range(cfg.start_attempts):
+            c = int(cand[rng.integers(len(cand))])
+            pose = Pose2D(r4(free_xy[c, 0]), r4(free_xy[c, 1]), r4(rng.uniform(-math.pi, math.pi)))
+            if world.collides(pose.x_m, pose.y_m):
+                continue
+            plan = plan_to_goal(world.move, pose, goal, lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),
+                                weight=cfg.validate_weight)
+            if plan is not None:
+                start = (pose, plan)
+                break
+        if start is None:
+            log.debug("scene %d instance %d: no lattice-reachable start", scene_seed, inst_id)
+            continue
+        pose, plan = start
+        allow = 1 if (k * cfg.episodes_per_scene + j) % cfg.distractor_every == 0 else 0
+        images = sample_goal_images(world, inst_id, 1, seed=(scene_seed % 2**31, inst_id, 17), distractor_budget=allow)
+        if not images:
+            log.debug("scene %d instance %d: no acceptable goal image", scene_seed, inst_id)
+            continue
+        gi = images[0]
+        episode_id = f"{split}-s{set_seed}-{k:04d}-{j}"
+        rel = f"goals/{episode_id}.png"
+        write_rgb(out_dir / rel, gi.rgb)
+        start_room = home.room_at(pose.x_m, pose.y_m)
+        obj = home.instance(inst_id)
+        geo = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
+        info = {
+            "difficulty": name,
+            "start_room": start_room.name if start_room else None,
+            "goal_room": goal_room.name if goal_room else None,
+            "multi_room": start_room is not goal_room,
+            "goal_variant": obj.variant,
+            "euclidean_distance_m": r4(min(math.hypot(pose.x_m - x, pose.y_m - y) for x, y in vp)),
+            "lattice_path_m": r4(plan.path_length_m),
+            "goal_camera": {"eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m], "yaw_rad": r4(gi.camera.yaw_rad),
+                            "pitch_rad": r4(gi.camera.pitch_rad), "hfov_deg": r4(gi.camera.hfov_deg)},
+            "goal_coverage": r4(gi.coverage),
+            "goal_shows_distractor": gi.shows_distractor,
+        }
+        episodes.append(Episode(episode_id, split, scene_seed, pose, inst_id, obj.category, rel,
+                                tuple((float(x), float(y)) for x, y in vp), geo, info))
+    return episodes
+
+
+def _worker(args: tuple[str, int, int, str, EpisodeGenConfig]) -> list[Episode]:
+    split, set_seed, k, out_dir, cfg = args
+    return _scene_episodes(split, set_seed, k, Path(out_dir), cfg)
+
+
+def generate_episode_set(split: str, seed: int, count: int, out_dir: str | Path, cfg: EpisodeGenConfig = EpisodeGenConfig(),
+                         workers: int = 1, progress: bool = True) -> list[Episode]:
+    """Generate ``count`` episodes into ``out_dir`` (episodes.json + goals/*.png)."""
+    from tqdm import tqdm
+
+    out = Path(out_dir)
+    (out / "goals").mkdir(parents=True, exist_ok=True)
+    episodes: list[Episode] = []
+    bar = tqdm(total=count, desc=f"{split} episodes", unit="ep", disable=not progress)
+    k = 0
+    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
+    try:
+        while len(episodes) < count:
+            need = count - len(episodes)
+            batch = max(1, min(workers, math.ceil(need / cfg.episodes_per_scene)))
+            jobs = [(split, seed, k + i, str(out), cfg) for i in range(batch)]
+            results = list(pool.map(_worker, jobs)) if pool else [_worker(jobs[0])]
+            k += len(results)
+            for eps in results:  # in scene order: the set does not depend on the worker count
+                take = eps[: count - len(episodes)]
+                episodes += take
+                bar.update(len(take))
+            if k > 50 + 3 * count:
+                raise RuntimeError(f"only {len(episodes)} episodes from {k} scenes; something is wrong")
+    finally:
+        bar.close()
+        if pool:
+            pool.shutdown()
+    keep = {e.goal_image for e in episodes}
+    for png in (out / "goals").glob("*.png"):  # goal images of episodes past the count, or stale
+        if f"goals/{png.name}" not in keep:
+            png.unlink()
+    meta = {"generator_version": GENERATOR_VERSION, "count": len(episodes), "scenes": len({e.scene_seed for e in episodes})}
+    save_episode_set(out, split, seed, episodes, meta)
+    return episodes

@@ -1,0 +1,289 @@
+"""Evaluation: run an agent on an episode set and write per-episode records and a summary.
+
+Outputs (``OUT``)::
+
+    OUT/episodes.jsonl   one JSON record per finished episode (appended as they finish)
+    OUT/summary.json     sr, spl, ne, max_st, episodes, per_category, errors, timing, agent extras
+
+Re-running with the same OUT skips the episodes already in ``episodes.jsonl`` (a
+torn last line from a crash is dropped), so an interrupted run resumes.
+Episodes are grouped by scene: a worker builds each home once and runs all its
+episodes. With ``workers > 1`` the groups are spread over processes (spawned, so
+torch and PyBullet state are never forked).
+
+Adding an agent (e.g. ``--agent modiin``)
+-----------------------------------------
+Write ``sim/evaluation/modiin.py`` (already listed in ``registry.PLUGIN_MODULES``)::
+
+    from sim.evaluation.registry import AgentSpec, register
+
+    def add_arguments(group):            # flags of this agent only
+        group.add_argument("--modiin-variant", default="default")
+        group.add_argument("--modiin-config", default=None)
+
+    def make_agent(args, oracle):        # oracle: the episode's SimOracle
+        return ModIINAgent(...)          # default agents ignore the oracle
+
+    class Attribution:                   # optional, one per episode
+        def __init__(self, args, episode, oracle): ...
+        def on_step(self, obs, action, record): ...   # record = agent.last_record
+        def finish(self, episode_record): return {"failure_cause": "..."}
+
+    def summarize(records): return {"failure_causes": {...}}
+
+    register(AgentSpec("modiin", "the Mod-IIN agent", make_agent, add_arguments,
+                       make_observer=Attribution, summarize=summarize))
+
+``make_observer(args, episode, oracle)`` may return None. Its ``on_step`` runs after
+each ``agent.act`` (before the action is applied) with the observation, the action
+and ``agent.last_record``; ``finish`` gets the episode record (metrics, trajectory,
+stop reason) and returns fields merged into it. ``summarize`` gets every record of
+the run and returns fields merged into summary.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import multiprocessing as mp
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from agent.types import Action, BackendError
+from sim.backend import SimBackend
+from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
+from sim.evaluation.registry import AgentSpec, get_spec
+from sim.metrics import aggregate
+from sim.world import SimWorld
+
+log = logging.getLogger(__name__)
+
+RECORDS = "episodes.jsonl"
+SUMMARY = "summary.json"
+
+
+def _json_safe(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    return v
+
+
+def run_episode(world: SimWorld, episode_set: EpisodeSet, episode: Episode, spec: AgentSpec, args: argparse.Namespace,
+                fail_fast: bool = False) -> dict[str, Any]:
+    """Run one episode in an already built world; returns its record."""
+    t0 = time.perf_counter()
+    backend = SimBackend.for_episode(world, episode, episode_set.goal_image_path(episode))
+    agent_s = sim_s = 0.0
+    error = None
+    try:
+        agent = spec.make_agent(args, backend.oracle)
+        observer = spec.make_observer(args, episode, backend.oracle) if spec.make_observer else None
+        ts = time.perf_counter()
+        obs = backend.reset()
+        sim_s += time.perf_counter() - ts
+        agent.reset(obs.goal_image)
+        while True:
+            ta = time.perf_counter()
+            action = Action(agent.act(obs))
+            agent_s += time.perf_counter() - ta
+            if observer is not None:
+                observer.on_step(obs, action, agent.last_record)
+            ts = time.perf_counter()
+            backend.apply(action)
+            if backend.done:
+                sim_s += time.perf_counter() - ts
+                break
+            obs = backend.observe()
+            sim_s += time.perf_counter() - ts
+    except (Exception, BackendError) as exc:  # recorded, counted as a failure, never silent
+        if fail_fast:
+            raise
+        observer = locals().get("observer")
+        error = f"{type(exc).__name__}: {exc}"
+        log.error("episode %s failed: %s\n%s", episode.episode_id, error, traceback.format_exc())
+        if not backend.done:
+            backend.done = True
+            backend.stop_reason = "error"
+    m = backend.result()
+    assert m is not None
+    steps = max(backend.steps, 1)
+    record: dict[str, Any] = {
+        "episode_id": episode.episode_id,
+        "scene_seed": episode.scene_seed,
+        "category": episode.goal_category,
+        "agent": spec.name,
+        "success": m.success,
+        "spl": r4(m.spl),
+        "ne": r4(m.ne_m) if math.isfinite(m.ne_m) else math.inf,
+        "steps": m.steps,
+        "path_length_m": r4(m.path_length_m),
+        "shortest_path_m": r4(m.shortest_path_m),
+        "max_steps_reached": m.max_steps_reached,
+        "called_stop": m.called_stop,
+        "stop_reason": backend.stop_reason,
+        "stop_to_viewpoint_m": r4(m.stop_to_viewpoint_m),
+        "difficulty": episode.info.get("difficulty"),
+        "trajectory": {
+            "poses_world": [[r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)] for p in backend.trajectory_world],
+            "actions": [int(a) for a in backend.actions],
+        },
+        "timing": {"wall_s": r4(time.perf_counter() - t0), "agent_ms_per_step": r4(1000 * agent_s / steps),
+                   "sim_ms_per_step": r4(1000 * sim_s / steps)},
+        "error": error,
+    }
+    if observer is not None and error is None:
+        record.update(dict(observer.finish(record)))
+    backend.close()
+    return record
+
+
+def _clean_args(args: argparse.Namespace) -> argparse.Namespace:
+    return argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
+
+
+def _run_group(episode_dir: str, episode_ids: list[str], agent: str, args: argparse.Namespace, fail_fast: bool):
+    es = load_episode_set(episode_dir)
+    spec = get_spec(agent)
+    episodes = [es.by_id(i) for i in episode_ids]
+    t0 = time.perf_counter()
+    world = SimWorld.from_seed(episodes[0].scene_seed)
+    build_s = time.perf_counter() - t0
+    try:
+        for e in episodes:
+            rec = run_episode(world, es, e, spec, args, fail_fast)
+            rec["timing"]["scene_build_s"] = r4(build_s)
+            yield rec
+    finally:
+        world.close()
+
+
+def _worker_main(episode_dir: str, agent: str, args: argparse.Namespace, fail_fast: bool, tasks, results) -> None:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    spec = get_spec(agent)
+    if spec.worker_init:
+        spec.worker_init(args)
+    while True:
+        ids = tasks.get()
+        if ids is None:
+            break
+        try:
+            for rec in _run_group(episode_dir, ids, agent, args, fail_fast):
+                results.put(("record", rec))
+        except Exception as exc:  # reported to the parent, which stops the run
+            results.put(("fatal", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    results.put(("done", None))
+
+
+def read_records(out_dir: Path) -> list[dict[str, Any]]:
+    """Valid records of OUT/episodes.jsonl; a torn line (crash while writing) is dropped."""
+    path = out_dir / RECORDS
+    if not path.exists():
+        return []
+    records, torn = [], False
+    for line in path.read_text().splitlines():
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            torn = True
+    if torn:
+        log.warning("%s: dropping an unreadable line (interrupted write)", path)
+        path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return records
+
+
+def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace, out_dir: str | Path,
+                   limit: int | None = None, workers: int = 1, progress: bool = True, fail_fast: bool = False) -> dict[str, Any]:
+    """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary."""
+    from tqdm import tqdm
+
+    es = load_episode_set(episode_dir)
+    spec = get_spec(agent)
+    args = _clean_args(args)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    selected = list(es.episodes[:limit] if limit else es.episodes)
+    done = {r["episode_id"]: r for r in read_records(out)}
+    others = {r.get("agent") for r in done.values()} - {agent}
+    if others:
+        raise ValueError(f"{out / RECORDS} holds records of agent(s) {sorted(others)}; use another --out or --overwrite")
+    todo = [e for e in selected if e.episode_id not in done]
+    groups: dict[int, list[str]] = {}
+    for e in todo:
+        groups.setdefault(e.scene_seed, []).append(e.episode_id)
+    if done:
+        log.info("resuming: %d of %d episodes already done", len(selected) - len(todo), len(selected))
+    bar = tqdm(total=len(selected), initial=len(selected) - len(todo), desc=f"eval {agent}", unit="ep", disable=not progress)
+    t0 = time.perf_counter()
+    with (out / RECORDS).open("a") as fh:
+        def write(rec: dict[str, Any]) -> None:
+            fh.write(json.dumps(_json_safe(rec)) + "\n")
+            fh.flush()
+            done[rec["episode_id"]] = rec
+            bar.update(1)
+            bar.set_postfix(sr=f"{sum(bool(done[i]['success']) for i in done) / len(done):.2f}")
+
+        if workers <= 1 or len(groups) <= 1:
+            if spec.worker_init:
+                spec.worker_init(args)
+            for ids in groups.values():
+                for rec in _run_group(str(episode_dir), ids, agent, args, fail_fast):
+                    write(rec)
+        else:
+            ctx = mp.get_context("spawn")
+            tasks, results = ctx.Queue(), ctx.Queue()
+            n = min(workers, len(groups))
+            for ids in sorted(groups.values(), key=len, reverse=True):
+                tasks.put(ids)
+            for _ in range(n):
+                tasks.put(None)
+            procs = [ctx.Process(target=_worker_main, args=(str(episode_dir), agent, args, fail_fast, tasks, results))
+                     for _ in range(n)]
+            for p in procs:
+                p.start()
+            finished, fatal = 0, None
+            try:
+                while finished < n:
+                    kind, payload = results.get()
+                    if kind == "record":
+                        write(payload)
+                    elif kind == "fatal":
+                        fatal = payload
+                        break
+                    else:
+                        finished += 1
+            finally:
+                if fatal is not None:
+                    for p in procs:
+                        p.terminate()
+                for p in procs:
+                    p.join()
+            if fatal is not None:
+                raise RuntimeError(f"an evaluation worker failed: {fatal}")
+    bar.close()
+    records = [done[e.episode_id] for e in selected if e.episode_id in done]
+    summary = aggregate([{**r, "ne": float(r["ne"])} for r in records])
+    summary.update({
+        "agent": agent,
+        "episode_set": str(episode_dir),
+        "split": es.split,
+        "errors": sum(1 for r in records if r.get("error")),
+        "timing": {
+            "wall_s_this_run": r4(time.perf_counter() - t0),
+            "agent_ms_per_step": r4(sum(r["timing"]["agent_ms_per_step"] for r in records) / max(len(records), 1)),
+            "sim_ms_per_step": r4(sum(r["timing"]["sim_ms_per_step"] for r in records) / max(len(records), 1)),
+        },
+    })
+    if spec.summarize:
+        summary.update(dict(spec.summarize(records)))
+    (out / SUMMARY).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")
+    return summary

@@ -1,0 +1,242 @@
+"""``SimWorld``: a procedural home built in PyBullet (DIRECT mode, CPU TinyRenderer).
+
+Public contract (CONTRIBUTING.md):
+
+* ``SimWorld.from_seed(scene_seed)`` / ``SimWorld(home_spec)``; ``.home`` is the ``HomeSpec``.
+* ``.render(pose_world, camera=SIM_CAMERA) -> Render(rgb, depth_m, instance_ids)``: the
+  robot's camera at a floor pose (camera height and pitch from the spec).
+  ``.render_view(eye_xyz, yaw, pitch, camera)`` renders any camera (goal images).
+* ``.move(pose_world, action) -> (pose_world, moved)``: one discrete action of DESIGN
+  section 1 (forward 0.25 m, turns 30 deg). A forward move whose swept path collides
+  leaves the pose unchanged (no sliding); ``moved`` is False then and for STOP.
+* ``.collides(x_m, y_m)``: the robot cylinder (r 0.17 m, h 1.41 m) at that position
+  overlaps the scene (walls, furniture; rugs are drivable) or leaves the home.
+* ``.navigable_grid(resolution_m)``: ground-truth ``NavGrid`` (world frame), cached.
+* ``.ray_instances(from_xyz, to_xyz)``: first object hit along rays (visibility tests).
+* ``.close()``: idempotent.
+
+Every furniture piece is one multi-link body: one link per material with a
+world-UV mesh (no collision), one collision-only link per convex part (for ray
+tests). Its segmentation id is therefore one id per instance.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import defaultdict
+
+import numpy as np
+import pybullet as pb
+
+from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, Pose2D, wrap_angle
+from sim import meshes
+from sim.camera import SIM_CAMERA, CameraSpec, Render, camera_axes, depth_buffer_to_metres
+from sim.geometry import FootprintIndex, NavGrid
+from sim.home import FOLIAGE_JITTER, HomeSpec, Part, SceneObject
+from sim.scene_gen import generate_home
+from sim.textures import texture_path
+
+log = logging.getLogger(__name__)
+
+# sub-steps of a forward move checked for collision (no tunnelling past corners)
+_SWEEP_SAMPLES = 5
+_LIGHT = dict(lightDirection=[0.4, 0.25, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=10.0,
+              lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.02)
+
+
+def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
+    if part.shape == "box":
+        # shift the pattern per part so that, say, four chair legs do not show the same patch
+        cx, cy, cz = part.center_xyz_m
+        offset = ((cx * 3.7 + cy * 1.9) % 1.0 * tile_m, (cz * 2.3 + cy * 3.1) % 1.0 * tile_m)
+        local = meshes.box(part.size_xyz_m, tile_m, part.uv_mode, offset)
+    elif part.shape == "cylinder":
+        local = meshes.cylinder(part.size_xyz_m[0] / 2.0, part.size_xyz_m[2], tile_m, part.taper)
+    elif part.shape == "ellipsoid":
+        # lumpy foliage: deterministic jitter from the part's position
+        seed = sum(int(round(v * 1000.0)) * k for v, k in zip(part.center_xyz_m, (73856093, 19349663, 83492791))) % (2**31)
+        rng = np.random.default_rng([seed, 11])
+        jitter = rng.uniform(2.0 - FOLIAGE_JITTER, FOLIAGE_JITTER, (7, 10))
+        jitter[0] = jitter[0].mean()
+        jitter[-1] = jitter[-1].mean()
+        radii = tuple(s / 2.0 for s in part.size_xyz_m)
+        local = meshes.ellipsoid(radii, tile_m, rings=6, segments=10, jitter=jitter)  # type: ignore[arg-type]
+    else:
+        raise ValueError(f"unknown part shape {part.shape!r}")
+    return local.transformed(part.center_xyz_m, part.yaw_rad)
+
+
+class SimWorld:
+    """A built home. Not thread-safe; one PyBullet client per world."""
+
+    def __init__(self, home: HomeSpec) -> None:
+        t0 = time.perf_counter()
+        self.home = home
+        self._client = pb.connect(pb.DIRECT)  # visual meshes: rendering
+        self._ray_client = pb.connect(pb.DIRECT)  # collision shapes: ray tests
+        self._ray_body_to_object: dict[int, int] = {}
+        self._textures: dict[str, int] = {}
+        self.body_to_object: dict[int, int] = {}
+        self.object_to_body: dict[int, int] = {}
+        self._grids: dict[float, NavGrid] = {}
+        x0, y0, x1, y1 = home.bounds_m
+        self.footprints = FootprintIndex(home.solid_footprints(), (x0, y0, x1, y1))
+        self._build()
+        n_bodies = pb.getNumBodies(physicsClientId=self._client)
+        self._seg_lut = np.full(n_bodies + 2, -1, dtype=np.int32)
+        for body, obj in self.body_to_object.items():
+            if home.objects[obj].is_instance:
+                self._seg_lut[body + 1] = obj
+        log.debug("built home %d: %d bodies, %d textures in %.2f s", home.seed, n_bodies, len(self._textures),
+                  time.perf_counter() - t0)
+
+    @classmethod
+    def from_seed(cls, scene_seed: int) -> "SimWorld":
+        return cls(generate_home(scene_seed))
+
+    # --- building ------------------------------------------------------------
+
+    def _texture(self, key: str) -> int:
+        if key not in self._textures:
+            self._textures[key] = pb.loadTexture(str(texture_path(self.home.materials[key])), physicsClientId=self._client)
+        return self._textures[key]
+
+    def _multibody(self, client: int, links: list[tuple[int, int]]) -> int:
+        """A static body at the origin with one fixed link per (visual, collision) shape pair."""
+        n = len(links)
+        return pb.createMultiBody(
+            baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1, basePosition=[0, 0, 0],
+            linkMasses=[0] * n, linkCollisionShapeIndices=[s for _, s in links], linkVisualShapeIndices=[v for v, _ in links],
+            linkPositions=[[0, 0, 0]] * n, linkOrientations=[[0, 0, 0, 1]] * n,
+            linkInertialFramePositions=[[0, 0, 0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
+            linkParentIndices=[0] * n, linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n,
+            physicsClientId=client)
+
+    def _body(self, parts: tuple[Part, ...] | list[Part], collide: bool = True) -> tuple[int, int]:
+        """(render body, ray body or -1). Visual meshes and collision shapes live in separate
+        clients: TinyRenderer draws a link's collision shape when the link has no visual
+        shape, which z-fights with the textured meshes (stripes, white patches)."""
+        c = self._client
+        by_material: dict[str, list[Part]] = defaultdict(list)
+        for p in parts:
+            by_material[p.material].append(p)
+        vis = []
+        for key, group in by_material.items():
+            mesh = meshes.Mesh.merge([_part_mesh(p, self.home.materials[key].tile_m) for p in group])
+            vis.append((key, pb.createVisualShape(
+                pb.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.indices.tolist(),
+                uvs=mesh.uvs.tolist(), normals=mesh.normals.tolist(), physicsClientId=c)))
+        body = self._multibody(c, [(v, -1) for _, v in vis])
+        for link, (key, _) in enumerate(vis):
+            pb.changeVisualShape(body, link, textureUniqueId=self._textures[key], rgbaColor=[1, 1, 1, 1], physicsClientId=c)
+        if not collide:
+            return body, -1
+        rc = self._ray_client
+        col = []
+        for p in parts:
+            if p.shape == "box":
+                col.append(pb.createCollisionShape(
+                    pb.GEOM_BOX, halfExtents=[s / 2.0 for s in p.size_xyz_m], collisionFramePosition=p.center_xyz_m,
+                    collisionFrameOrientation=pb.getQuaternionFromEuler([0, 0, p.yaw_rad]), physicsClientId=rc))
+            else:  # convex hull of the visual mesh
+                col.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=_part_mesh(p, 1.0).vertices.tolist(),
+                                                   physicsClientId=rc))
+        return body, self._multibody(rc, [(-1, s) for s in col])
+
+    def _build(self) -> None:
+        for key in sorted(self.home.materials):
+            self._texture(key)
+        self._body(self.home.walls)
+        self._body(self.home.floors)
+        self._body([self.home.ceiling], collide=False)
+        for obj in self.home.objects:
+            body, ray_body = self._body(obj.parts)
+            self.body_to_object[body] = obj.object_id
+            self.object_to_body[obj.object_id] = body
+            self._ray_body_to_object[ray_body] = obj.object_id
+
+    # --- queries ---------------------------------------------------------------
+
+    def collides(self, x_m: float, y_m: float) -> bool:
+        return self.footprints.collides(x_m, y_m)
+
+    def move(self, pose_world: Pose2D, action: Action) -> tuple[Pose2D, bool]:
+        if action == Action.MOVE_FORWARD:
+            dx = FORWARD_STEP_M * math.cos(pose_world.yaw_rad)
+            dy = FORWARD_STEP_M * math.sin(pose_world.yaw_rad)
+            for k in range(1, _SWEEP_SAMPLES + 1):
+                t = k / _SWEEP_SAMPLES
+                if self.collides(pose_world.x_m + t * dx, pose_world.y_m + t * dy):
+                    return pose_world, False
+            return Pose2D(pose_world.x_m + dx, pose_world.y_m + dy, pose_world.yaw_rad), True
+        if action == Action.TURN_LEFT:
+            return Pose2D(pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad + math.radians(TURN_ANGLE_DEG))), True
+        if action == Action.TURN_RIGHT:
+            return Pose2D(pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad - math.radians(TURN_ANGLE_DEG))), True
+        if action == Action.STOP:
+            return pose_world, False
+        raise ValueError(f"unknown action {action!r}")
+
+    def navigable_grid(self, resolution_m: float = 0.05) -> NavGrid:
+        key = round(resolution_m, 6)
+        if key not in self._grids:
+            self._grids[key] = self.footprints.navigable_grid(resolution_m)
+        return self._grids[key]
+
+    def instance(self, instance_id: int) -> SceneObject:
+        return self.home.instance(instance_id)
+
+    def ray_objects(self, from_xyz: np.ndarray, to_xyz: np.ndarray) -> np.ndarray:
+        """First object hit along each ray: (N,) int64 object id, -1 for walls/floors, -2 for no hit."""
+        from_xyz = np.asarray(from_xyz, dtype=np.float64).reshape(-1, 3)
+        to_xyz = np.asarray(to_xyz, dtype=np.float64).reshape(-1, 3)
+        out = np.empty(len(from_xyz), dtype=np.int64)
+        batch = pb.MAX_RAY_INTERSECTION_BATCH_SIZE - 1
+        for s in range(0, len(from_xyz), batch):
+            hits = pb.rayTestBatch(from_xyz[s:s + batch].tolist(), to_xyz[s:s + batch].tolist(),
+                                   physicsClientId=self._ray_client)
+            for k, h in enumerate(hits):
+                out[s + k] = -2 if h[0] < 0 else self._ray_body_to_object.get(h[0], -1)
+        return out
+
+    # --- rendering -------------------------------------------------------------
+
+    def render_view(self, eye_xyz: tuple[float, float, float] | np.ndarray, yaw_rad: float, pitch_rad: float,
+                    camera: CameraSpec) -> Render:
+        """Render from any camera pose (yaw CCW from +x, pitch positive down)."""
+        eye = np.asarray(eye_xyz, dtype=np.float64)
+        forward, up = camera_axes(yaw_rad, pitch_rad)
+        view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=self._client)
+        proj = pb.computeProjectionMatrixFOV(camera.vfov_deg, camera.width_px / camera.height_px, camera.near_m,
+                                             camera.far_m, physicsClientId=self._client)
+        w, h, rgba, depth, seg = pb.getCameraImage(
+            camera.width_px, camera.height_px, view, proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
+            physicsClientId=self._client, **_LIGHT)
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
+        depth_m = depth_buffer_to_metres(np.asarray(depth, dtype=np.float32).reshape(h, w), camera.near_m, camera.far_m)
+        seg = np.asarray(seg, dtype=np.int64).reshape(h, w)
+        seg = np.where((seg >= -1) & (seg < len(self._seg_lut) - 1), seg, -1)
+        return Render(rgb, depth_m, self._seg_lut[seg + 1])
+
+    def render(self, pose_world: Pose2D, camera: CameraSpec = SIM_CAMERA) -> Render:
+        """The robot's camera at a floor pose."""
+        eye = (pose_world.x_m, pose_world.y_m, camera.height_m)
+        return self.render_view(eye, pose_world.yaw_rad, camera.pitch_rad, camera)
+
+    def close(self) -> None:
+        for name in ("_client", "_ray_client"):
+            client = getattr(self, name, -1)
+            if client is not None and client >= 0:
+                try:
+                    pb.disconnect(physicsClientId=client)
+                except pb.error as exc:  # already disconnected: nothing left to release
+                    log.debug("disconnect: %s", exc)
+                setattr(self, name, -1)
+
+    def __enter__(self) -> "SimWorld":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

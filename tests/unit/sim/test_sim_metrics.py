@@ -1,0 +1,51 @@
+"""The task's metrics on hand-made cases (DESIGN section 1)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.metrics import aggregate, episode_metrics, is_success, spl
+
+VP = np.array([[1.0, 1.0], [2.0, 1.0]])
+
+
+def test_spl_formula() -> None:
+    assert spl(True, 4.0, 5.0) == pytest.approx(0.8)
+    assert spl(True, 4.0, 4.0) == 1.0
+    assert spl(True, 4.0, 3.5) == 1.0  # a path shorter than the geodesic counts as the geodesic
+    assert spl(False, 4.0, 4.0) == 0.0
+
+
+def test_success_boundary_is_inclusive() -> None:
+    assert is_success(True, (1.1, 1.0), VP)  # exactly 0.1 m from a viewpoint
+    assert not is_success(True, (1.0, 1.1 + 1e-6), VP)  # just outside
+    assert not is_success(False, (1.0, 1.0), VP)  # must issue STOP
+    assert is_success(True, (2.0 + 0.06, 1.0 + 0.08), VP)  # 0.1 m diagonally
+
+
+def test_episode_metrics_combines_them() -> None:
+    m = episode_metrics(called_stop=True, stop_xy_m=(2.05, 1.0), viewpoints_xy_m=VP, steps=40, max_steps=1000,
+                        path_length_m=6.0, shortest_path_m=4.5, stop_geodesic_m=0.05)
+    assert m.success and m.spl == pytest.approx(0.75) and m.ne_m == 0.05 and not m.max_steps_reached
+    assert m.stop_to_viewpoint_m == pytest.approx(0.05)
+    fail = episode_metrics(called_stop=False, stop_xy_m=(5.0, 5.0), viewpoints_xy_m=VP, steps=1000, max_steps=1000,
+                           path_length_m=30.0, shortest_path_m=4.5, stop_geodesic_m=3.2)
+    assert not fail.success and fail.spl == 0.0 and fail.ne_m == 3.2 and fail.max_steps_reached
+
+
+def test_aggregate_overall_and_per_category() -> None:
+    rows = [
+        {"category": "chair", "success": True, "spl": 0.8, "ne": 0.05, "max_steps_reached": False},
+        {"category": "chair", "success": False, "spl": 0.0, "ne": 2.95, "max_steps_reached": True},
+        {"category": "tv", "success": True, "spl": 0.6, "ne": 0.0, "max_steps_reached": False},
+        {"category": "tv", "success": False, "spl": 0.0, "ne": math.inf, "max_steps_reached": False},
+    ]
+    s = aggregate(rows)
+    assert s["episodes"] == 4 and s["sr"] == 0.5 and s["spl"] == pytest.approx(0.35) and s["max_st"] == 0.25
+    assert s["ne"] == pytest.approx(1.0) and s["ne_unreachable"] == 1
+    assert s["per_category"]["chair"] == {"episodes": 2, "sr": 0.5, "spl": 0.4, "ne": 1.5, "ne_unreachable": 0, "max_st": 0.5}
+    assert s["per_category"]["tv"]["sr"] == 0.5
+    assert aggregate([])["episodes"] == 0
