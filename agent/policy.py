@@ -36,7 +36,7 @@ from agent.planner import FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
-from agent.types import Action, AgentRecord, Observation, Pose2D, wrap_angle
+from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, AgentRecord, Observation, Pose2D, wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +97,8 @@ class ModIINAgent:
         self._scan_left: int = -1  # >=0 while scanning at a stop point
         self._unreachable_goal = 0
         self._rescans_left = self.config.policy.max_rescans
+        self._blocked: set[tuple[int, int, int]] = set()
+        self._blocked_repeats = 0  # (cell i, cell j, heading bin) of failed forward moves
         self._rescan_steps = 0
         self._record = None
 
@@ -112,6 +114,7 @@ class ModIINAgent:
         if self._prev_pose is not None:
             if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
                 self.grid.mark_collision(self._prev_pose)
+                self._blocked.add(self._move_key(self._prev_pose))
             self.grid.mark_visited((self._prev_pose.x_m, self._prev_pose.y_m), (obs.pose.x_m, obs.pose.y_m))
         else:
             self.grid.mark_visited((obs.pose.x_m, obs.pose.y_m), (obs.pose.x_m, obs.pose.y_m))
@@ -177,6 +180,23 @@ class ModIINAgent:
 
     # --- parts ---------------------------------------------------------------------
 
+    def _move_key(self, pose: Pose2D) -> tuple[int, int, int]:
+        i, j = self.grid.xy_to_ij(np.array([[pose.x_m, pose.y_m]]))[0]
+        return int(i) + self.grid.origin_ij[0], int(j) + self.grid.origin_ij[1], _heading_bin(pose.yaw_rad)
+
+    def _safe(self, plan: Plan, pose: Pose2D) -> Action:
+        """The plan's action, unless it is a forward move that already failed from this very
+        cell and heading (the collision mark is only a guess of what blocked it): then turn
+        towards the side the path bends to."""
+        if plan.action != Action.MOVE_FORWARD or self._move_key(pose) not in self._blocked:
+            self._blocked_repeats = 0
+            return plan.action
+        self._blocked_repeats += 1
+        path = plan.path_xy_m
+        far = path[min(len(path) - 1, 8)]
+        err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
+        return Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT
+
     def _localise(self, obs: Observation, result: ReIDResult | None, score: float) -> np.ndarray:
         if self.config.policy.localisation_source == "oracle":
             assert self.oracle_ego_mask is not None
@@ -235,7 +255,11 @@ class ModIINAgent:
         grid, pose = self.grid, obs.pose
         region = region_within(grid.layers.goal, pc.stop_radius_m, grid.resolution_m)
         agent_ij = grid.cell_of(pose)
-        if region[agent_ij]:
+        # A forward step is 0.25 m: when the region is nearer than that and the way there is
+        # blocked, this is as close as the robot gets (it still has to face the goal and verify).
+        near_enough = self._move_key(pose) in self._blocked and region_within(
+            grid.layers.goal, pc.stop_radius_m + FORWARD_STEP_M, grid.resolution_m)[agent_ij]
+        if region[agent_ij] or near_enough:
             goal_xy = grid.ij_to_xy(cand.cells_ij)
             k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
             bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
@@ -267,7 +291,7 @@ class ModIINAgent:
             # keep looking around: the map may open a way (a new view, a cleared collision)
             return Action.TURN_LEFT, "approach", "goal not reachable yet", None, "goal", f"{exc.reason}: {exc}"
         self._unreachable_goal = 0
-        return plan.action, "approach", "navigating to the goal candidate", plan, "goal", None
+        return self._safe(plan, pose), "approach", "navigating to the goal candidate", plan, "goal", None
 
     def _explore(self, obs: Observation):
         grid, pose = self.grid, obs.pose
@@ -288,7 +312,10 @@ class ModIINAgent:
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
             self._rescan_steps = 0
-            return plan.action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
+            action = self._safe(plan, pose)
+            if action != plan.action and self._blocked_repeats > 3:
+                self.explorer.blacklist_target(grid, "blocked")
+            return action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown): drop them once and look around again before giving up.
         if self._rescans_left > 0:
@@ -302,6 +329,10 @@ class ModIINAgent:
             return Action.TURN_LEFT, "rescan", "no reachable frontier: looking around again", None, None, error or "no_frontier"
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Action.STOP, "exhausted", "no reachable frontier and no goal candidate", None, None, error or "no_frontier"
+
+
+def _heading_bin(yaw_rad: float) -> int:
+    return int(round(yaw_rad / math.radians(TURN_ANGLE_DEG))) % int(round(360 / TURN_ANGLE_DEG))
 
 
 def _ms(t0: float) -> float:
