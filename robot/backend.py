@@ -153,10 +153,8 @@ class StretchBackend:
         if action == Action.STOP:
             self._actions_applied += 1
             return
-        link = self._require_link()
-        self._check_safe()
         t0 = time.monotonic()
-        start = link.state.base_world  # type: ignore[union-attr]  # _check_safe ensured a state
+        start = self._check_safe().base_world  # the freshest base pose (state stream, ~30 Hz)
         goal = discrete_goal(start, action)
         sent_at = time.monotonic()
         resends: list[int] = []
@@ -235,6 +233,8 @@ class StretchBackend:
             now = time.monotonic()
             if done():
                 return
+            if self._closed:
+                raise BackendError("closed", "the Stretch backend was closed while waiting for the robot")
             if check_link:
                 self._check_safe(now)
             if now >= deadline:

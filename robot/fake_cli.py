@@ -84,8 +84,11 @@ def run(args: argparse.Namespace) -> int:
         if args.silent_after_s is not None and not stop.wait(args.silent_after_s):
             knobs.silent = True
             log.warning("fake Stretch: silent from now on (--silent-after-s)")
-        while not stop.wait(5.0):
-            log.info("fake Stretch: pose %s, last step %d", fake.pose_world, fake.handled_step)
+        last_step = fake.handled_step
+        while not stop.wait(1.0):
+            if fake.handled_step != last_step:  # a line per second of activity, none when idle
+                last_step = fake.handled_step
+                log.info("fake Stretch: step %d, pose %s", last_step, fake.pose_world)
     finally:
         fake.close()
         distance = getattr(world, "distance_to_goal_m", lambda pose: None)(fake.pose_world)

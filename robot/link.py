@@ -60,7 +60,12 @@ class BridgeLink:
         self._pub.setsockopt(zmq.SNDHWM, 1)
         if ":" in config.host:
             self._pub.setsockopt(zmq.IPV6, 1)
-        self._pub.connect(config.endpoint(config.action_port))
+        try:
+            self._pub.connect(config.endpoint(config.action_port))
+        except zmq.ZMQError as exc:
+            self._pub.close(linger=0)
+            self._ctx.term()
+            raise RuntimeError(f"cannot connect to the robot at {config.host!r}: {exc}") from exc
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._state: RobotState | None = None
@@ -73,22 +78,26 @@ class BridgeLink:
         self._ready = threading.Event()
         self._thread = threading.Thread(target=self._spin, name="stretch-link", daemon=True)
         self._thread.start()
-        if not self._ready.wait(timeout=5.0):
-            raise RuntimeError("stretch link receiver did not start")
-        if self._thread_error:
-            raise RuntimeError(self._thread_error)
+        if not self._ready.wait(timeout=5.0) or self._thread_error:
+            error = self._thread_error or "stretch link receiver did not start"
+            self.close()
+            raise RuntimeError(error)
 
     # --- receiver thread ---------------------------------------------------------------
 
     def _spin(self) -> None:
         cfg = self.config
+        socks: list[zmq.Socket] = []
         try:
-            obs_sock = _sub_socket(self._ctx, cfg.endpoint(cfg.obs_port), cfg)
-            state_sock = _sub_socket(self._ctx, cfg.endpoint(cfg.state_port), cfg)
+            for port in (cfg.obs_port, cfg.state_port):
+                socks.append(_sub_socket(self._ctx, cfg.endpoint(port), cfg))
         except zmq.ZMQError as exc:
+            for sock in socks:
+                sock.close(linger=0)
             self._thread_error = f"cannot connect to the robot at {cfg.host}: {exc}"
             self._ready.set()
             return
+        obs_sock, state_sock = socks
         self._ready.set()
         poller = zmq.Poller()
         poller.register(obs_sock, zmq.POLLIN)
@@ -104,6 +113,9 @@ class BridgeLink:
             if not self._stop.is_set():
                 self._thread_error = f"robot link failed: {exc}"
                 log.error("%s", self._thread_error)
+        except Exception as exc:  # a bug here must end the run with a reason, not a silent thread
+            self._thread_error = f"robot link receiver crashed: {type(exc).__name__}: {exc}"
+            log.exception("robot link receiver crashed")
         finally:
             obs_sock.close(linger=0)
             state_sock.close(linger=0)
@@ -188,6 +200,9 @@ class BridgeLink:
     def send(self, message: dict[str, Any]) -> None:
         data = pickle.dumps(message, protocol=PICKLE_PROTOCOL)
         with self._send_lock:
+            if self._stop.is_set():
+                log.warning("action %s not sent: the link is closed", message.get("step"))
+                return
             try:
                 self._pub.send(data, flags=zmq.NOBLOCK)
             except zmq.Again:

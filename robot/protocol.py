@@ -129,6 +129,13 @@ class RobotState:
 
 
 def parse_state(msg: Mapping[str, Any], received_s: float) -> RobotState:
+    try:
+        return _parse_state(msg, received_s)
+    except (TypeError, ValueError) as exc:  # odd types inside the dict (ProtocolError is a ValueError)
+        raise exc if isinstance(exc, ProtocolError) else ProtocolError(f"state message: {exc}") from exc
+
+
+def _parse_state(msg: Mapping[str, Any], received_s: float) -> RobotState:
     if not isinstance(msg, Mapping):
         raise ProtocolError(f"state message must be a dict, got {type(msg).__name__}")
     mode = msg.get("control_mode")
@@ -164,6 +171,13 @@ class RawObservation:
 
 
 def parse_observation(msg: Mapping[str, Any], received_s: float) -> RawObservation:
+    try:
+        return _parse_observation(msg, received_s)
+    except (TypeError, ValueError) as exc:
+        raise exc if isinstance(exc, ProtocolError) else ProtocolError(f"observation message: {exc}") from exc
+
+
+def _parse_observation(msg: Mapping[str, Any], received_s: float) -> RawObservation:
     if not isinstance(msg, Mapping):
         raise ProtocolError(f"observation message must be a dict, got {type(msg).__name__}")
     gps = np.asarray(_require(msg, "gps", "observation"), dtype=np.float64).reshape(-1)

@@ -123,3 +123,24 @@ def test_observation_without_camera_pose_is_a_protocol_error() -> None:
     msg = {"rgb": 0, "depth": 0, "camera_K": np.eye(3), "camera_pose": None, "gps": [0, 0], "compass": [0]}
     with pytest.raises(protocol.ProtocolError, match="camera_pose"):
         protocol.parse_observation(msg, 0.0)
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        {"base_pose": {"x": 1}},
+        {"base_pose": "abc"},
+        {"base_pose": [0, 0, 0], "step": [1, 2]},
+    ],
+)
+def test_odd_types_in_state_messages_are_protocol_errors(msg) -> None:
+    with pytest.raises(protocol.ProtocolError):
+        protocol.parse_state(msg, 0.0)
+
+
+def test_odd_types_in_observation_messages_are_protocol_errors() -> None:
+    msg = {"rgb": 0, "depth": 0, "camera_K": {"K": 1}, "camera_pose": np.eye(4), "gps": [0, 0], "compass": [0]}
+    with pytest.raises(protocol.ProtocolError):
+        protocol.parse_observation(msg, 0.0)
+    with pytest.raises(protocol.ProtocolError):
+        protocol.parse_observation([1, 2], 0.0)
