@@ -52,6 +52,8 @@ log = logging.getLogger(__name__)
 
 _TICK_S = 0.05  # how often waits re-check safety when no message arrives
 _HEAD_STILL_RAD = math.radians(0.5)  # camera tilt change between observations that counts as still
+_CAMERA_OFFSET_WARN_M = 0.05  # a map error the agent's 5 cm cells would show
+_CAMERA_PAN_WARN_RAD = math.radians(3.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +102,7 @@ class StretchBackend:
         self._required_step: int | None = None  # observations must echo at least this
         self._actions_applied = 0
         self.moves: list[MoveReport] = []
+        self.camera_offset: Pose2D | None = None  # head camera in the base frame, measured at reset
 
     # --- Backend protocol ----------------------------------------------------------------
 
@@ -139,7 +142,9 @@ class StretchBackend:
         self._start_world = raw.base_world
         self._actions_applied = 0
         self.moves = []
-        return self._to_observation(raw)
+        obs = self._to_observation(raw)
+        self._report_camera_mount(raw)
+        return obs
 
     def observe(self) -> Observation:
         if self._start_world is None:
@@ -373,6 +378,23 @@ class StretchBackend:
             lambda: f"no observation echoing step {required} within {self.config.observation_timeout_s:.0f} s",
         )
         return link.observation  # type: ignore[return-value]
+
+    def _report_camera_mount(self, raw: RawObservation) -> None:
+        """Log where the head camera sits relative to the base. ``Observation`` carries only the
+        camera's height and tilt (the agent assumes it above the base origin, looking along the
+        heading), so a horizontal offset or a residual pan shifts the agent's map by that much."""
+        T = encoding.camera_pose_matrix(raw.T_world_camera)
+        local = Pose2D(float(T[0, 3]), float(T[1, 3]), encoding.camera_yaw_rad(T)).relative_to(raw.base_world)
+        self.camera_offset = local
+        text = (
+            f"head camera {local.x_m:+.3f} m ahead, {local.y_m:+.3f} m left of the base origin, "
+            f"pan {math.degrees(local.yaw_rad):+.1f} deg, height {T[2, 3]:.2f} m, "
+            f"tilt {math.degrees(encoding.camera_tilt_rad(T)):.1f} deg down"
+        )
+        if math.hypot(local.x_m, local.y_m) > _CAMERA_OFFSET_WARN_M or abs(local.yaw_rad) > _CAMERA_PAN_WARN_RAD:
+            log.warning("%s: the agent assumes the camera above the base origin looking ahead", text)
+        else:
+            log.info("%s", text)
 
     def _to_observation(self, raw: RawObservation) -> Observation:
         assert self._start_world is not None

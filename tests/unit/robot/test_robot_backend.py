@@ -247,3 +247,10 @@ def test_close_is_idempotent_and_ends_the_backend(make_fake, make_backend) -> No
     assert info.value.reason == "closed"
     with pytest.raises(BackendError):
         backend.reset()
+
+
+def test_reset_measures_the_head_camera_mount(make_fake, make_backend) -> None:
+    backend = make_backend(make_fake())
+    backend.reset()
+    offset = backend.camera_offset
+    assert offset is not None and offset.distance_to(Pose2D()) < 1e-6 and abs(offset.yaw_rad) < 1e-6
