@@ -184,16 +184,11 @@ def bench_stream(server: Server, n_clients: int, n_events: int) -> None:
     import httpx
 
     latencies: list[float] = []
-    ready = threading.Barrier(n_clients + 1)
 
     async def client_task(k: int) -> None:
         async with httpx.AsyncClient(timeout=60) as client:
             async with client.stream("GET", f"{server.url}/api/events") as resp:
-                first = True
                 async for raw in resp.aiter_lines():
-                    if first:
-                        first = False
-                        await asyncio.get_running_loop().run_in_executor(None, ready.wait)
                     if raw.startswith("data: "):
                         now = time.time()
                         data = json.loads(raw[6:])
@@ -207,8 +202,7 @@ def bench_stream(server: Server, n_clients: int, n_events: int) -> None:
 
     thread = threading.Thread(target=lambda: asyncio.run(clients()), daemon=True)
     thread.start()
-    ready.wait()
-    while server.console.hub.n_subscribers < n_clients:
+    while server.console.hub.n_subscribers < n_clients:  # every client is subscribed
         time.sleep(0.01)
     for i in range(n_events):  # at the step rate of a fast run (20 Hz)
         server.console.hub.publish("log", None, {"message": f"bench {i}", "bench": True, "t_s": time.time()})

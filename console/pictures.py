@@ -18,7 +18,7 @@ from agent.types import MapSnapshot, Pose2D
 
 # Layer colours (RGB); later layers are painted over earlier ones.
 UNKNOWN_RGB = (48, 52, 60)
-EXPLORED_RGB = (222, 226, 232)
+EXPLORED_RGB = (196, 208, 228)  # light blue-grey: visible on white pages and viewers
 VISITED_RGB = (178, 222, 186)
 OBSTACLE_RGB = (70, 78, 110)
 FRONTIER_RGB = (0, 190, 220)

@@ -111,8 +111,11 @@ def build_home_entry(
         progress(f"{len(world.home.rooms)} rooms, {len(instances)} goal instances; rendering the gallery")
         for inst in instances:
             room = world.home.rooms[inst.room_index].name
-            images = sample_goal_images(world, inst.object_id, views_per_instance, np.random.default_rng([seed, inst.object_id]))
-            for v, rgb in enumerate(images):
+            images = sample_goal_images(world, inst.object_id, views_per_instance, (seed, inst.object_id))
+            if not images:
+                logger.info("home %d: no acceptable goal view of instance %d; left out of the gallery", seed, inst.object_id)
+            for v, goal in enumerate(images):
+                rgb = goal.rgb
                 name = f"i{inst.object_id}-v{v}"
                 Image.fromarray(rgb).save(out_dir / f"{name}.png")
                 gallery.append(
@@ -165,9 +168,9 @@ class SimSession:
             outcome = "unscored"
         if not self.target_known:
             return Outcome(outcome, f"{detail}; the goal photo's instance is unknown, so the run is not scored")
-        metrics = _metrics(self.backend.result())
+        metrics = _metrics(self.backend.result())  # None while the episode is not over
         if outcome == "stopped":
-            return Outcome("stopped", detail, metrics)
+            return Outcome("stopped", f"{detail}; a stopped run is not scored", metrics or None)
         success = bool(metrics.get("success")) if metrics else False
         return Outcome("success" if success else "failure", detail, metrics)
 
@@ -194,17 +197,22 @@ def open_session(
     start_pose_world: tuple[float, float, float],
     goal_rgb: np.ndarray,
     target_instance_id: int | None,
+    max_steps: int,
     agent_config_path: Path | None,
 ) -> SimSession:
     from sim.backend import SimBackend
 
     world = _world(home_seed, n_rooms)
     try:
+        # The backend owns (and closes) the world; its step budget is the run's, so a run
+        # that spends it is over for the backend too and can be scored.
         backend = SimBackend(
             world,
-            start_pose_world=Pose2D(*start_pose_world),
-            goal_image=goal_rgb,
+            goal_rgb,
+            Pose2D(*start_pose_world),
             goal_instance_id=target_instance_id,
+            max_steps=max_steps,
+            owns_world=True,
         )
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:

@@ -306,6 +306,7 @@ class SimProvider:
             start_pose_world=tuple(opts["start_pose_world"]),
             goal_rgb=goal_rgb,
             target_instance_id=None if target is None else int(target["instance_id"]),
+            max_steps=resolved.max_steps,
             agent_config_path=self.config.agent_config_path,
         )
 

@@ -118,13 +118,13 @@ const imgnav = (() => {
         return;
       }
       const homes = this.sim.homes || [];
-      this.homeSel = el("select", { id: "home", name: "home" });
+      this.homeSel = el("select", { id: "sim-home", name: "home" });
       for (const h of homes) this.homeSel.append(el("option", { value: h.id, text: h.label }));
-      this.startSel = el("select", { id: "start", name: "start" });
+      this.startSel = el("select", { id: "sim-start", name: "start" });
       this.gallery = el("div", { class: "gallery", id: "gallery" });
       this.simBox.append(
-        el("label", { for: "home", text: "Home" }), this.homeSel,
-        el("label", { for: "start", text: "Start" }), this.startSel,
+        el("label", { for: "sim-home", text: "Home" }), this.homeSel,
+        el("label", { for: "sim-start", text: "Start" }), this.startSel,
         el("label", { text: "Gallery: tap an object to use its picture as the goal photo" }), this.gallery,
       );
       this.homeSel.addEventListener("change", () => this.renderHome());

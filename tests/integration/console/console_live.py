@@ -1,0 +1,60 @@
+"""Helpers of the console integration tests: a console with the real simulator and the
+real Mod-IIN agent, a live uvicorn server, polling with deadlines."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import pytest
+
+from console.api import create_app
+from console.context import Console, ConsoleConfig
+from console.sim_provider import SimProvider, SimProviderConfig
+from console.viewer import ViewerConfig
+
+HOME_SEED = 0
+ARTIFACTS = Path(__file__).resolve().parents[3] / "test-artifacts" / "console"
+
+
+def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float, what: str = "condition") -> Any:
+    """Call ``fn`` until ``until(value)``; a deadline, not a sleep, bounds the wait."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = fn()
+        if until(value):
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout_s} s; last value {value!r}")
+        time.sleep(0.05)
+
+
+def sim_console(data_dir: Path, viewer: bool = False, **config: Any) -> Console:
+    provider = SimProvider(data_dir, SimProviderConfig(home_seeds=(HOME_SEED,)))
+    assert provider.available()[0], "the simulator cache should be prepared by sim_data_dir"
+    return Console(
+        ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None, **config),
+        {"sim": provider},
+    )
+
+
+class LiveServer:
+    """The real app on a real uvicorn server in a thread (browser tests, SSE)."""
+
+    def __init__(self, console: Console) -> None:
+        import uvicorn
+
+        self.console = console
+        self.server = uvicorn.Server(uvicorn.Config(create_app(console), host="127.0.0.1", port=0, log_level="warning"))
+        self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
+        self.thread.start()
+        poll(lambda: self.server.started, bool, 30, "uvicorn start")
+        sock = self.server.servers[0].sockets[0]
+        self.url = f"http://127.0.0.1:{sock.getsockname()[1]}"
+
+    def close(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(30)
+        self.console.close()

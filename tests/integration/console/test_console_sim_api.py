@@ -1,0 +1,158 @@
+"""The console API with the real PyBullet simulator and the real Mod-IIN agent."""
+
+from __future__ import annotations
+
+import io
+import shutil
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from console_live import HOME_SEED, poll, sim_console
+from console.api import create_app
+
+FINAL = ("finished", "stopped", "failed", "interrupted")
+
+
+@pytest.fixture
+def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
+    data = tmp_path / "data"
+    shutil.copytree(sim_data_dir / "sim", data / "sim")
+    return data
+
+
+@pytest.fixture
+def client(data_dir: Path) -> Iterator[TestClient]:
+    console = sim_console(data_dir)
+    with TestClient(create_app(console)) as client:
+        yield client
+
+
+def home(client: TestClient) -> dict:
+    desc = client.get("/api/backends/sim").json()
+    assert desc["available"], desc
+    return desc["homes"][0]
+
+
+def gallery_png(client: TestClient, item: dict) -> bytes:
+    resp = client.get(item["url"])
+    assert resp.status_code == 200 and resp.headers["content-type"] == "image/png"
+    return resp.content
+
+
+def pick_target(h: dict) -> tuple[dict, dict]:
+    """A large, easy instance (couch or bed) and the start near it."""
+    by_cat = sorted(h["gallery"], key=lambda g: ["couch", "bed", "tv", "chair", "potted plant", "toilet"].index(g["category"]))
+    for g in by_cat:
+        start = next((s for s in h["starts"] if s["id"] == f"n{g['instance']}"), None)
+        if start is not None:
+            return g, start
+    raise AssertionError("no gallery instance with a near start")
+
+
+def wait_final(client: TestClient, run_id: str, timeout_s: float = 240) -> dict:
+    return poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in FINAL, timeout_s, "run end")
+
+
+def test_whole_run_to_completion_is_scored(client: TestClient) -> None:
+    h = home(client)
+    g, start = pick_target(h)
+    resp = client.post(
+        "/api/runs",
+        files={"goal_image": ("goal.png", gallery_png(client, g), "image/png")},
+        data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "200"},
+    )
+    assert resp.status_code == 201, resp.text
+    run = resp.json()
+    assert run["target"]["instance_id"] == g["instance"] and run["target"]["identified_by"] == "gallery_item"
+    done = wait_final(client, run["id"])
+    assert done["status"] == "finished", done
+    assert done["outcome"] in ("success", "failure"), done  # scored either way
+    for key in ("success", "spl"):
+        assert key in done["metrics"], done["metrics"]
+    assert done["agent_config"]["reid"]["matcher"]
+    assert done["timings"]["upload_to_first_action_s"] > 0
+    full = client.get(f"/api/runs/{run['id']}", params={"steps": True}).json()
+    assert len(full["steps"]) == done["n_steps"] > 0
+    assert any(s["reid_score"] is not None for s in full["steps"])
+    for name in ("goal.png", "goal_upload.png", "trajectory.json", "map.png", "run.webp"):
+        assert name in done["artifacts"], done["artifacts"]
+        assert client.get(done["artifacts"][name]).status_code == 200
+    Path("test-artifacts/console").mkdir(parents=True, exist_ok=True)
+    Path("test-artifacts/console/whole_run_map.png").write_bytes(client.get(done["artifacts"]["map.png"]).content)
+
+
+def test_reencoded_gallery_photo_is_identified_and_unknown_photo_is_unscored(client: TestClient) -> None:
+    h = home(client)
+    g = h["gallery"][0]
+    as_jpeg = io.BytesIO()
+    Image.open(io.BytesIO(gallery_png(client, g))).convert("RGB").resize((400, 400)).save(as_jpeg, "JPEG", quality=80)
+    run = client.post("/api/runs", files={"goal_image": ("g.jpg", as_jpeg.getvalue(), "image/jpeg")}, data={"max_steps": "2"}).json()
+    assert run["target"]["instance_id"] == g["instance"] and run["target"]["identified_by"].startswith("perceptual hash")
+    done = wait_final(client, run["id"])
+    assert done["status"] == "finished" and done["outcome"] in ("success", "failure") and done["n_steps"] == 2
+
+    rng = np.random.default_rng(7)
+    other = (np.kron(rng.integers(0, 255, (12, 16, 3)), np.ones((20, 20, 1)))).astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(other).save(buf, "PNG")
+    run = client.post("/api/runs", files={"goal_image": ("x.png", buf.getvalue(), "image/png")}, data={"max_steps": "2"}).json()
+    assert run["target"] is None
+    done = wait_final(client, run["id"])
+    assert done["outcome"] == "unscored" and "not scored" in done["outcome_detail"]
+
+
+def test_second_run_409_and_stop_mid_run(client: TestClient) -> None:
+    h = home(client)
+    g = h["gallery"][0]
+    png = gallery_png(client, g)
+    first = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data={"home": h["id"]}).json()
+    second = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")})
+    assert second.status_code == 409 and second.json()["detail"]["code"] == "run_active"
+    poll(lambda: client.get(f"/api/runs/{first['id']}").json()["n_steps"], lambda n: n >= 2, 120, "two steps")
+    assert client.post(f"/api/runs/{first['id']}/stop").json()["stopping"] is True
+    done = wait_final(client, first["id"])
+    assert done["status"] == "stopped" and done["outcome"] == "stopped"
+    assert 2 <= done["n_steps"] < 1000
+    assert "run.webp" in done["artifacts"]
+
+
+def test_restart_recovery(data_dir: Path) -> None:
+    console = sim_console(data_dir)
+    client = TestClient(create_app(console, close_on_shutdown=False))
+    h = home(client)
+    g = h["gallery"][0]
+    run = client.post("/api/runs", files={"goal_image": ("g.png", gallery_png(client, g), "image/png")}).json()
+    poll(lambda: client.get(f"/api/runs/{run['id']}").json()["status"], lambda s: s == "running", 60, "running")
+    # A second process opening the same data dir finds the run active: the first "died".
+    console2 = sim_console(data_dir)
+    with TestClient(create_app(console2)) as client2:
+        row = client2.get(f"/api/runs/{run['id']}").json()
+        assert row["status"] == "interrupted" and row["outcome"] == "interrupted"
+        assert client2.get("/api/runs").json()["runs"][0]["id"] == run["id"]
+    console.close()  # clean shutdown of the first: stops its robot
+
+
+def test_bad_simulator_options(client: TestClient) -> None:
+    h = home(client)
+    png = gallery_png(client, h["gallery"][0])
+    for data, fragment in [
+        ({"home": "home-999"}, "no home"),
+        ({"start": "nowhere"}, "no start"),
+        ({"start": "1,2"}, "no start"),
+        ({"start": "a,b,c"}, "x,y,yaw_deg"),
+        ({"gallery_item": "home-999/i1-v0"}, "no gallery image"),
+        ({"gallery_item": "../../etc/passwd"}, "no gallery image"),
+        ({"max_steps": "0"}, "between 1 and 1000"),
+        ({"max_steps": "5000"}, "between 1 and 1000"),
+        ({"target_instance": "x"}, "integer"),
+    ]:
+        resp = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data=data)
+        assert resp.status_code == 422, (data, resp.text)
+        assert fragment in resp.json()["detail"]["message"], (data, resp.json())
+    assert client.get("/api/sim/gallery/home-0/..%2F..%2Fcatalog.json").status_code == 404
+    assert client.get(f"/api/sim/gallery/home-{HOME_SEED}/catalog.json").status_code == 404
