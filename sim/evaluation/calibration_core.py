@@ -128,6 +128,7 @@ def plot_curves(path: str, curves: dict[str, Curves], title: str) -> None:
     ax1.set(xlabel="recall", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02), title="precision-recall")
     ax2.set(xlabel="threshold tau (score >= tau)", ylabel="F-measure", ylim=(0, 1.02), title="F-measure")
     ax2.set_xscale("symlog", linthresh=1.0)
+    ax2.set_xlim(left=0.0)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

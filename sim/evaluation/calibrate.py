@@ -1,0 +1,183 @@
+"""``imgnav calibrate``: choose the re-ID threshold tau by maximal F-measure (Krantz et al. 2023, 3.2).
+
+    imgnav calibrate --matcher xfeat_lighterglue sift --instances 100 --images-per-instance 10 \\
+        --out runs/calibration
+
+1. Goal images of train-split instances (``sim.goals.sample_goal_images``, the episodes'
+   own sampler): homes ``scene_seed_for("train", --scene-set, k)`` for k = 0, 1, ... until
+   ``--instances`` instances have ``--images-per-instance`` images each. Cached as PNGs in
+   ``--image-cache`` (default OUT/images) and reused by later runs and other matchers.
+2. Per matcher: features once per image (the agent's settings from ``--config``), then every
+   same-instance pair and a uniform sample of ``--max-negatives`` different-instance pairs,
+   each weighted by the inverse sampling rate (``calibration_core``); one matching pass gives
+   both scores, ``conf`` and ``count``.
+3. Per score: PR and F curves (OUT/<matcher>_pr.png), the max-F tau and the figures in
+   OUT/<matcher>_<score>.json, and the calibration file the agent reads,
+   agent/calibration/<matcher>_<score>.json (unless ``--no-write-agent``).
+
+Only the train split is used; asking for another split is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--matcher", nargs="+", default=["xfeat_lighterglue"],
+                        choices=["xfeat_lighterglue", "aliked_lightglue", "sift"])
+    parser.add_argument("--instances", type=int, default=100, help="train instances (>= 100 for the paper's protocol)")
+    parser.add_argument("--images-per-instance", type=int, default=10)
+    parser.add_argument("--scene-set", type=int, default=500, help="set seed of the train homes used for calibration")
+    parser.add_argument("--max-negatives", type=int, default=8000,
+                        help="different-instance pairs drawn uniformly (weighted by the inverse rate); 0 = all")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--config", default="sim", help="agent deployment or YAML whose reid settings are used")
+    parser.add_argument("--out", default="runs/calibration")
+    parser.add_argument("--image-cache", default=None, help="directory of cached goal images (default OUT/images)")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--no-write-agent", action="store_true", help="do not write agent/calibration/*.json")
+
+
+# --- images ---------------------------------------------------------------------------
+
+
+def load_or_sample_images(cache: Path, instances: int, per_instance: int, scene_set: int) -> list[dict]:
+    """Index entries {path, instance, scene_seed, instance_id, category}, sampling what is missing."""
+    from sim.episodes import read_rgb, scene_seed_for, write_rgb  # noqa: F401 (read_rgb used by callers)
+    from sim.goals import sample_goal_images
+    from sim.world import SimWorld
+
+    cache.mkdir(parents=True, exist_ok=True)
+    index_path = cache / "index.json"
+    index: dict = json.loads(index_path.read_text()) if index_path.exists() else {"scenes_done": [], "images": []}
+    if index.get("per_instance") not in (None, per_instance) or index.get("scene_set") not in (None, scene_set):
+        raise ValueError(f"{cache} holds another image set (per_instance/scene_set differ); use another --image-cache")
+    index["per_instance"], index["scene_set"] = per_instance, scene_set
+
+    def n_instances() -> int:
+        return len({e["instance"] for e in index["images"]})
+
+    k = 0
+    from tqdm import tqdm
+
+    bar = tqdm(total=instances, initial=min(n_instances(), instances), desc="goal images", unit="inst")
+    while n_instances() < instances:
+        seed = scene_seed_for("train", scene_set, k)
+        k += 1
+        if seed in index["scenes_done"]:
+            continue
+        with SimWorld.from_seed(seed) as world:
+            for obj in world.home.instances:
+                if n_instances() >= instances:
+                    break
+                imgs = sample_goal_images(world, obj.object_id, per_instance, seed=(seed, obj.object_id, 17))
+                if len(imgs) < per_instance:
+                    continue  # the protocol needs per_instance images of every instance
+                key = f"{seed}_{obj.object_id}"
+                for j, gi in enumerate(imgs):
+                    p = cache / f"{key}_{j:02d}.png"
+                    write_rgb(p, gi.rgb)
+                    index["images"].append({"path": p.name, "instance": key, "scene_seed": seed,
+                                            "instance_id": obj.object_id, "category": obj.category})
+                bar.update(1)
+        index["scenes_done"].append(seed)
+        index_path.write_text(json.dumps(index))
+    bar.close()
+    keys = sorted({e["instance"] for e in index["images"]})[:instances]
+    chosen = set(keys)
+    return [e for e in index["images"] if e["instance"] in chosen]
+
+
+# --- one matcher ------------------------------------------------------------------------
+
+
+def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: Path, args: argparse.Namespace) -> dict:
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from agent.config import load_agent_config
+    from agent.reid.identifier import calibration_path, make_matcher
+    from sim.episodes import read_rgb
+    from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs
+
+    cfg = replace(load_agent_config(args.config).reid, matcher=matcher_name, num_threads=args.threads)
+    matcher = make_matcher(cfg)
+    t0 = time.perf_counter()
+    feats = [matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
+             for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")]
+    t_feat = time.perf_counter() - t0
+    inst = [e["instance"] for e in entries]
+    ps = make_pairs(inst, args.max_negatives, args.seed)
+    t0 = time.perf_counter()
+    conf, count = score_pairs(matcher, feats, ps.pairs,
+                              tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair"))
+    t_match = time.perf_counter() - t0
+    cats = np.array([e["category"] for e in entries])
+    same_cat = cats[ps.pairs[:, 0]] == cats[ps.pairs[:, 1]]
+    np.savez_compressed(out / f"{matcher_name}_scores.npz", pairs=ps.pairs, label=ps.label, weight=ps.weight,
+                        conf=conf, count=count, same_category=same_cat)
+    curves = {"conf": pr_curves(conf, ps.label, ps.weight), "count": pr_curves(count, ps.label, ps.weight)}
+    plot_curves(str(out / f"{matcher_name}_pr.png"), curves,
+                f"{matcher_name}: {len(set(inst))} instances, {len(entries)} images, "
+                f"{int(ps.label.sum())} same / {int((~ps.label).sum())} of {ps.n_negatives_total} different pairs")
+    results = {}
+    for kind, c in curves.items():
+        res = {
+            "matcher": matcher_name, "score": kind, "tau": c.tau, "max_f": c.max_f,
+            "precision_at_tau": float(c.precision[c.best]), "recall_at_tau": float(c.recall[c.best]),
+            "auc_pr": c.auc_pr(),
+            "instances": len(set(inst)), "images": len(entries), "same_pairs": int(ps.label.sum()),
+            "different_pairs_scored": int((~ps.label).sum()), "different_pairs_total": ps.n_negatives_total,
+            "negative_weight": float(ps.weight[~ps.label][0]) if (~ps.label).any() else 1.0,
+            "split": "train", "scene_set": args.scene_set, "seed": args.seed,
+            "goal_max_keypoints": cfg.goal_max_keypoints, "max_side_px": cfg.max_side_px,
+            "feature_ms_per_image": 1000 * t_feat / max(len(entries), 1),
+            "match_ms_per_pair": 1000 * t_match / max(len(ps.pairs), 1),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        }
+        (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
+        if not args.no_write_agent:
+            calibration_path(matcher_name, kind).write_text(json.dumps(res, indent=1) + "\n")
+        log.info("%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)", matcher_name, kind, c.max_f, c.tau,
+                 res["precision_at_tau"], res["recall_at_tau"])
+        results[kind] = res
+    return results
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.instances < 2 or args.images_per_instance < 2:
+        log.error("need at least 2 instances with 2 images each")
+        return 2
+    if args.instances < 100 or args.images_per_instance < 10:
+        log.warning("fewer than the protocol's 100 instances x 10 images: a trial run")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(args.image_cache) if args.image_cache else out / "images"
+    entries = load_or_sample_images(cache, args.instances, args.images_per_instance, args.scene_set)
+    log.info("%d images of %d instances", len(entries), len({e["instance"] for e in entries}))
+    table = {}
+    for name in args.matcher:
+        try:
+            table[name] = calibrate_matcher(name, entries, cache, out, args)
+        except RuntimeError as exc:  # e.g. the optional matcher is not installed
+            log.error("%s: %s", name, exc)
+            return 2
+    (out / "summary.json").write_text(json.dumps(table, indent=1) + "\n")
+    lines = ["| matcher | score | tau | max F | precision | recall |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, per in table.items():
+        for kind, r in per.items():
+            lines.append(f"| {name} | {kind} | {r['tau']:.4g} | {r['max_f']:.3f} | {r['precision_at_tau']:.3f} | "
+                         f"{r['recall_at_tau']:.3f} |")
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,323 @@
+"""``imgnav eval --agent modiin``: the Mod-IIN agent and its Table 2 ablations (Krantz et al. 2023).
+
+    imgnav eval --episodes data/episodes/val --agent modiin --modiin-reid conf --modiin-loc mask \\
+        --limit 100 --workers 2 --out runs/modiin-val
+
+Variants (rows of the paper's Table 2 that exist here):
+
+* ``--modiin-reid``: ``conf`` (Keypoint-Conf), ``count`` (Keypoint-Match), ``oracle`` (the goal
+  is detected when at least ``--modiin-oracle-min-px`` of its pixels are in view).
+* ``--modiin-loc``: ``mask`` (matched keypoints inside a GrabCut mask of the goal image; the
+  paper used a detector's mask), ``crop`` (the central crop, "Crop-Projected"), ``oracle``
+  (the ground-truth egocentric instance mask is projected), ``goalmask-oracle`` (keypoints
+  inside the ground-truth goal-image mask; measures the segmentation alone).
+
+Every failed episode is attributed to one of the paper's failure classes from the agent's
+records and the simulator's ground truth (see ``Attribution``); the distribution goes into
+summary.json (``failure_causes``), with the paper-layout Markdown row (``table_md``).
+``python -m sim.evaluation.modiin OUT1 OUT2 ...`` prints the table of several runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from agent.config import AgentConfig, agent_config_from_dict, load_agent_config
+from agent.configio import to_dict
+from agent.types import Action, AgentRecord, Observation
+from sim.evaluation.registry import AgentSpec, register
+
+log = logging.getLogger(__name__)
+
+FAILURE_CLASSES = ("reid_false_negative", "reid_false_positive", "exploration", "localisation", "local_navigation")
+_MATCHERS: dict[tuple, Any] = {}  # per process: weights load once, not per episode
+_AGENTS_BY_ORACLE: dict[int, Any] = {}
+
+
+def add_arguments(group: Any) -> None:
+    group.add_argument("--modiin-config", default="sim", help="agent deployment (sim, stretch) or YAML path")
+    group.add_argument("--modiin-reid", choices=["conf", "count", "oracle"], default="conf")
+    group.add_argument("--modiin-loc", choices=["mask", "crop", "oracle", "goalmask-oracle"], default="mask")
+    group.add_argument("--modiin-matcher", choices=["xfeat_lighterglue", "aliked_lightglue", "sift"], default=None)
+    group.add_argument("--modiin-tau", type=float, default=None, help="override the calibrated threshold")
+    group.add_argument("--modiin-set", action="append", default=[], metavar="KEY=VALUE",
+                       help="config override, e.g. policy.verify=false (YAML value); repeatable")
+    group.add_argument("--modiin-oracle-min-px", type=int, default=400,
+                       help="goal pixels in view for the oracle re-ID to fire")
+    group.add_argument("--modiin-seen-px", type=int, default=2300,
+                       help="goal pixels in view (1%% of the frame) for failure attribution to call it 'seen'")
+    group.add_argument("--modiin-threads", type=int, default=None, help="torch threads per worker (default 2 // workers)")
+
+
+def variant_name(args: argparse.Namespace) -> str:
+    name = f"reid={args.modiin_reid}, loc={args.modiin_loc}"
+    if args.modiin_matcher:
+        name += f", matcher={args.modiin_matcher}"
+    if args.modiin_set:
+        name += ", " + ", ".join(args.modiin_set)
+    return name
+
+
+def build_config(args: argparse.Namespace) -> AgentConfig:
+    import yaml
+
+    data = to_dict(load_agent_config(args.modiin_config))
+    for item in args.modiin_set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--modiin-set {item!r}: expected KEY=VALUE")
+        *path, leaf = key.strip().split(".")
+        node = data
+        for p in path:
+            if p not in node or not isinstance(node[p], dict):
+                raise ValueError(f"--modiin-set {item!r}: no config section {p!r}")
+            node = node[p]
+        node[leaf] = yaml.safe_load(value)
+    cfg = agent_config_from_dict(data)
+    reid, pol, seg = cfg.reid, cfg.policy, cfg.segmentation
+    if args.modiin_matcher:
+        reid = replace(reid, matcher=args.modiin_matcher)
+    if args.modiin_reid in ("conf", "count"):
+        reid = replace(reid, score=args.modiin_reid)
+        pol = replace(pol, reid_source="matcher")
+    else:
+        pol = replace(pol, reid_source="oracle")
+    if args.modiin_tau is not None:
+        reid = replace(reid, tau=args.modiin_tau)
+    if args.modiin_loc == "oracle":
+        pol = replace(pol, localisation_source="oracle")
+    else:
+        pol = replace(pol, localisation_source="goal_mask")
+        seg = replace(seg, source={"mask": "grabcut", "crop": "crop", "goalmask-oracle": "oracle"}[args.modiin_loc])
+    threads = getattr(args, "modiin_threads", None) or max(1, 2 // max(1, getattr(args, "workers", 1) or 1))
+    reid = replace(reid, num_threads=threads)
+    return replace(cfg, reid=reid, policy=pol, segmentation=seg)
+
+
+def worker_init(args: argparse.Namespace) -> None:
+    import torch
+
+    torch.set_num_threads(build_config(args).reid.num_threads)
+
+
+def make_agent(args: argparse.Namespace, oracle: Any):
+    from agent.policy import ModIINAgent
+    from agent.reid.identifier import make_matcher
+
+    cfg = build_config(args)
+    needs_matcher = cfg.policy.reid_source == "matcher" or cfg.policy.localisation_source == "goal_mask"
+    matcher = None
+    if needs_matcher:
+        key = (cfg.reid.matcher, cfg.reid.max_side_px, cfg.reid.min_confidence, cfg.reid.sift_ratio)
+        if key not in _MATCHERS:
+            _MATCHERS[key] = make_matcher(cfg.reid)
+        matcher = _MATCHERS[key]
+    min_px = args.modiin_oracle_min_px
+    agent = ModIINAgent(
+        cfg,
+        matcher=matcher,
+        oracle_reid=(lambda obs: int(oracle.goal_mask().sum()) >= min_px) if cfg.policy.reid_source == "oracle" else None,
+        oracle_ego_mask=(lambda obs: oracle.goal_mask()) if cfg.policy.localisation_source == "oracle" else None,
+        goal_mask_fn=_PendingGoalMask() if cfg.segmentation.source == "oracle" else None,
+    )
+    _AGENTS_BY_ORACLE.clear()
+    _AGENTS_BY_ORACLE[id(oracle)] = agent
+    return agent
+
+
+class _PendingGoalMask:
+    """The ground-truth goal-image mask, filled in by the episode's observer (which knows the
+    episode's goal camera) before ``agent.reset`` calls it."""
+
+    def __init__(self) -> None:
+        self.mask: np.ndarray | None = None
+
+    def __call__(self, goal_image: np.ndarray) -> np.ndarray:
+        if self.mask is None:
+            raise RuntimeError("goal-image oracle mask not prepared for this episode")
+        return self.mask
+
+
+def goal_image_mask(oracle: Any, episode: Any) -> np.ndarray:
+    """Re-render the episode's goal camera and keep the goal instance's pixels."""
+    from sim.camera import GOAL_IMAGE_PX, CameraSpec
+
+    cam = episode.info["goal_camera"]
+    eye = cam["eye_xyz_m"]
+    spec = CameraSpec(GOAL_IMAGE_PX, GOAL_IMAGE_PX, cam["hfov_deg"], eye[2], cam["pitch_rad"])
+    render = oracle.world.render_view(eye, cam["yaw_rad"], cam["pitch_rad"], spec)
+    return render.instance_ids == episode.goal_instance_id
+
+
+# --- failure attribution ------------------------------------------------------------------
+
+
+class Attribution:
+    """Per-episode observer: collects per-step ground truth beside the agent's records and
+    attributes a failure to one class (checked in this order):
+
+    * the final goal candidate lies off the goal instance (its points' median > 1 m from the
+      object's footprint): ``reid_false_positive`` when some detection fired with the goal
+      out of view (< 100 goal pixels), else ``localisation`` (detections with the goal in
+      view projected elsewhere);
+    * the final candidate lies on the goal: ``local_navigation`` (found and localised, but
+      the stop missed the success region or the budget ran out);
+    * no candidate and the goal was never in view (>= ``seen_px``): ``exploration``;
+    * no candidate although the goal was in view: ``reid_false_negative`` (never detected,
+      or detected and then rejected by verification).
+    """
+
+    def __init__(self, args: argparse.Namespace, episode: Any, oracle: Any) -> None:
+        self.oracle = oracle
+        self.seen_px = args.modiin_seen_px
+        self.variant = variant_name(args)
+        agent = _AGENTS_BY_ORACLE.get(id(oracle))
+        if agent is not None and isinstance(getattr(agent, "segmenter", None) and agent.segmenter.oracle, _PendingGoalMask):
+            agent.segmenter.oracle.mask = goal_image_mask(oracle, episode)
+        obj = oracle.world.home.instance(episode.goal_instance_id)
+        self.goal_bounds_world = obj.bounds_xy_m()
+        self.steps = 0
+        self.seen_steps = 0
+        self.first_seen: int | None = None
+        self.det_seen = 0  # detections with the goal in view
+        self.det_unseen = 0  # detections with the goal out of view
+        self.first_detection: int | None = None
+        self.planner_errors = 0
+        self.modes: Counter[str] = Counter()
+        self.last: AgentRecord | None = None
+        self.timings: dict[str, list[float]] = {}
+
+    def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
+        self.steps += 1
+        px = int(self.oracle.goal_mask().sum())
+        seen = px >= self.seen_px
+        if seen:
+            self.seen_steps += 1
+            self.first_seen = obs.step if self.first_seen is None else self.first_seen
+        if record is None:
+            return
+        self.last = record
+        self.modes[record.mode] += 1
+        if record.planner_error:
+            self.planner_errors += 1
+        if record.goal_detected:
+            self.first_detection = obs.step if self.first_detection is None else self.first_detection
+            # "out of view": (almost) no goal pixels at all, so a detection cannot be the goal
+            if px < min(100, self.seen_px):
+                self.det_unseen += 1
+            else:
+                self.det_seen += 1
+        for k, v in record.timings_ms.items():
+            self.timings.setdefault(k, []).append(float(v))
+
+    def _candidate_distance_m(self) -> float | None:
+        """Median distance of the final candidate's points to the goal's footprint (None: no candidate)."""
+        if self.last is None or len(self.last.goal_points_xyz) == 0:
+            return None
+        pts = self.oracle.start_pose_world.transform_xy(self.last.goal_points_xyz[:, :2])
+        x0, y0, x1, y1 = self.goal_bounds_world
+        dx = np.maximum(np.maximum(x0 - pts[:, 0], pts[:, 0] - x1), 0.0)
+        dy = np.maximum(np.maximum(y0 - pts[:, 1], pts[:, 1] - y1), 0.0)
+        return float(np.median(np.hypot(dx, dy)))
+
+    def cause(self, success: bool) -> str | None:
+        if success:
+            return None
+        d = self._candidate_distance_m()
+        if d is not None and d > 1.0:
+            return "reid_false_positive" if self.det_unseen > 0 else "localisation"
+        if d is not None:
+            return "local_navigation"
+        return "exploration" if self.seen_steps == 0 else "reid_false_negative"
+
+    def finish(self, episode_record: Mapping[str, Any]) -> Mapping[str, Any]:
+        d = self._candidate_distance_m()
+        return {
+            "variant": self.variant,
+            "failure_cause": self.cause(bool(episode_record.get("success"))),
+            "modiin": {
+                "goal_seen_steps": self.seen_steps,
+                "first_seen_step": self.first_seen,
+                "first_detection_step": self.first_detection,
+                "detections_goal_in_view": self.det_seen,
+                "detections_goal_out_of_view": self.det_unseen,
+                "candidate_to_goal_m": None if d is None else round(d, 3),
+                "final_mode": self.last.mode if self.last else None,
+                "final_reason": self.last.reason if self.last else None,
+                "planner_errors": self.planner_errors,
+                "modes": dict(self.modes),
+                "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
+            },
+        }
+
+
+# --- summary and the paper's table ------------------------------------------------------------
+
+
+def failure_distribution(records: list[dict[str, Any]]) -> dict[str, Any]:
+    failed = [r for r in records if not r.get("success")]
+    counts = Counter(r.get("failure_cause") or ("error" if r.get("error") else "unattributed") for r in failed)
+    n = max(len(failed), 1)
+    return {"failed": len(failed), "counts": dict(counts), "shares": {k: round(v / n, 3) for k, v in counts.items()}}
+
+
+def table_row(label: str, summary: Mapping[str, Any]) -> str:
+    ne = summary.get("ne")
+    ne_s = f"{ne:.2f}" if isinstance(ne, (int, float)) and math.isfinite(ne) else str(ne)
+    return f"| {label} | {ne_s} | {summary['max_st']:.3f} | {summary['sr']:.3f} | {summary['spl']:.3f} | {summary['episodes']} |"
+
+
+TABLE_HEADER = "| variant | NE (m) | Max-ST | SR | SPL | episodes |\n| --- | --- | --- | --- | --- | --- |"
+
+
+def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
+    from sim.metrics import aggregate
+
+    variants = sorted({r.get("variant", "?") for r in records})
+    agg = aggregate([{**r, "ne": float(r["ne"])} for r in records])
+    per_step = {}
+    for key in ("mapping", "reid", "localisation", "planning", "total"):
+        vals = [r["modiin"]["median_ms"][key] for r in records if key in r.get("modiin", {}).get("median_ms", {})]
+        if vals:
+            per_step[key] = round(float(np.median(vals)), 2)
+    return {
+        "variant": variants[0] if len(variants) == 1 else variants,
+        "failure_causes": failure_distribution(records),
+        "agent_median_ms_per_step": per_step,
+        "table_md": TABLE_HEADER + "\n" + table_row(", ".join(variants), agg),
+    }
+
+
+register(AgentSpec("modiin", "the Mod-IIN agent (Krantz et al. 2023) and its ablations", make_agent, add_arguments,
+                   make_observer=Attribution, summarize=summarize, worker_init=worker_init))
+
+
+def main(argv: list[str]) -> int:
+    """Print the paper-layout table (and failure shares) of several evaluation outputs."""
+    rows, fails = [TABLE_HEADER], []
+    for d in argv:
+        s = json.loads((Path(d) / "summary.json").read_text())
+        label = s.get("variant", d)
+        rows.append(table_row(label if isinstance(label, str) else d, s))
+        fc = s.get("failure_causes", {}).get("shares", {})
+        fails.append(f"| {label} | " + " | ".join(f"{fc.get(c, 0.0):.2f}" for c in FAILURE_CLASSES) + " |")
+    print("\n".join(rows))
+    print()
+    print("| variant | " + " | ".join(FAILURE_CLASSES) + " |")
+    print("| --- |" + " --- |" * len(FAILURE_CLASSES))
+    print("\n".join(fails))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
