@@ -142,6 +142,14 @@ def create_app(console: Console, close_on_shutdown: bool = True) -> Any:
             raise _error(404, "not_found", "no such gallery image")
         return FileResponse(path, media_type="image/png", headers={"cache-control": "max-age=3600"})
 
+    @app.get("/api/sim/episodes/{episode_id}/goal.png", summary="The goal image of an episode of the loaded set")
+    def episode_goal(episode_id: str) -> FileResponse:
+        provider = console.providers.get("sim")
+        path = getattr(provider, "episode_goal_path", lambda e: None)(episode_id) if provider else None
+        if path is None:
+            raise _error(404, "not_found", "no such episode")
+        return FileResponse(path, media_type="image/png")
+
     # --- runs ----------------------------------------------------------------
 
     @app.post("/api/runs", status_code=201, summary="Start a run with a goal photo")

@@ -23,6 +23,7 @@ def build_providers(args: argparse.Namespace, data_dir: Path) -> dict[str, Backe
     sim_config = SimProviderConfig(
         home_seeds=tuple(range(first, first + n_homes)),
         agent_config_path=getattr(args, "agent_config", None),
+        episodes_dir=getattr(args, "episodes", None),
     )
     providers: dict[str, BackendProvider] = {"sim": SimProvider(data_dir, sim_config)}
     stretch_host = getattr(args, "stretch_host", None)

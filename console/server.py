@@ -31,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-viewer", action="store_true", help="do not start the live 3D viewer")
     parser.add_argument("--homes", type=int, default=2, help="number of simulator homes to prepare (default: 2)")
     parser.add_argument("--home-seed", type=int, default=None, help="scene seed of the first simulator home")
+    parser.add_argument("--episodes", type=Path, default=None, help="offer the episodes of this set (imgnav episodes --out DIR) as runs")
     parser.add_argument("--stretch-host", default=None, help="offer the Stretch backend: the robot's address (stretch_ai bridge)")
     parser.add_argument("--agent-config", type=Path, default=None, help="agent YAML (default: agent/configs/sim.yaml)")
 

@@ -219,3 +219,18 @@ def open_session(
         world.close()
         raise
     return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None)
+
+
+def open_episode_session(*, episode: Any, goal_rgb: np.ndarray, max_steps: int, agent_config_path: Path | None) -> SimSession:
+    """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
+    from sim.backend import SimBackend
+    from sim.world import SimWorld
+
+    world = SimWorld.from_seed(episode.scene_seed)
+    try:
+        backend = SimBackend.for_episode(world, episode, goal_rgb, max_steps=max_steps, owns_world=True)
+        agent, agent_config = build_agent(agent_config_path or "sim")
+    except BaseException:
+        world.close()
+        raise
+    return SimSession(backend, agent, agent_config, target_known=True)

@@ -87,6 +87,7 @@ class SimProviderConfig:
     views_per_instance: int = 1
     starts_per_home: int = 4
     agent_config_path: Path | None = None  # None: the agent's sim deployment YAML
+    episodes_dir: Path | None = None  # an episode set (``imgnav episodes``) offered as run choices
 
 
 class SimProvider:
@@ -102,6 +103,12 @@ class SimProvider:
         self._error: str | None = None
         self._progress = "not prepared yet"
         self._thread: threading.Thread | None = None
+        self._episodes: Any = None
+        if config.episodes_dir is not None:
+            from sim.episodes import load_episode_set
+
+            self._episodes = load_episode_set(config.episodes_dir)
+            logger.info("offering %d episodes from %s", len(self._episodes), config.episodes_dir)
         self._load_cache()
 
     # --- preparation ---------------------------------------------------------
@@ -238,7 +245,27 @@ class SimProvider:
                     ],
                 }
             )
-        return {"homes": homes, "progress": self._progress}
+        episodes = []
+        if self._episodes is not None:
+            for e in self._episodes:
+                episodes.append(
+                    {
+                        "id": e.episode_id,
+                        "label": f"{e.episode_id}: {e.goal_category} in scene {e.scene_seed} ({e.geodesic_distance_m:.1f} m)",
+                        "goal_image_url": f"/api/sim/episodes/{e.episode_id}/goal.png",
+                    }
+                )
+        return {"homes": homes, "episodes": episodes, "progress": self._progress}
+
+    def episode_goal_path(self, episode_id: str) -> Path | None:
+        if self._episodes is None:
+            return None
+        try:
+            episode = self._episodes.by_id(episode_id)
+        except KeyError:
+            return None
+        path = self._episodes.goal_image_path(episode)
+        return path if path.is_file() else None
 
     def gallery_path(self, home_id: str, filename: str) -> Path | None:
         home = self.homes.get(home_id)
@@ -255,7 +282,7 @@ class SimProvider:
         if unknown:
             raise OptionsError(f"unknown simulator options: {sorted(unknown)}")
         if "episode" in options:
-            raise OptionsError("episodes are chosen as a home and a start here; pass home and start instead")
+            return self._resolve_episode(options, goal_dhash)
         home_id = options.get("home") or next(iter(homes))
         home = homes.get(home_id)
         if home is None:
@@ -295,10 +322,46 @@ class SimProvider:
         }
         return ResolvedRun("sim", resolved_options, target, max_steps)
 
+    def _resolve_episode(self, options: Mapping[str, str], goal_dhash: int) -> ResolvedRun:
+        """An episode fixes the home, the start and the target; the photo is the goal image
+        (the episode's own, or any other picture of the same instance)."""
+        if self._episodes is None:
+            raise OptionsError("no episode set is loaded (start the console with --episodes DIR)")
+        extra = set(options) - {"episode", "max_steps"}
+        if extra:
+            raise OptionsError(f"an episode fixes home, start and target; drop {sorted(extra)}")
+        try:
+            e = self._episodes.by_id(options["episode"])
+        except KeyError:
+            raise OptionsError(f"no episode {options['episode']!r}") from None
+        max_steps = _parse_max_steps(options.get("max_steps"))
+        resolved_options = {
+            "episode": e.episode_id,
+            "episodes_dir": str(self.config.episodes_dir),
+            "home_seed": e.scene_seed,
+            "start_pose_world": list(e.start_pose_world.as_tuple()),
+            "max_steps": max_steps,
+        }
+        target = {
+            "instance_id": e.goal_instance_id,
+            "category": e.goal_category,
+            "episode": e.episode_id,
+            "geodesic_distance_m": e.geodesic_distance_m,
+            "identified_by": "episode",
+        }
+        return ResolvedRun("sim", resolved_options, target, max_steps)
+
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         from console import sim_adapter
 
         opts = resolved.options
+        if "episode" in opts:
+            return sim_adapter.open_episode_session(
+                episode=self._episodes.by_id(opts["episode"]),
+                goal_rgb=goal_rgb,
+                max_steps=resolved.max_steps,
+                agent_config_path=self.config.agent_config_path,
+            )
         target = resolved.target
         return sim_adapter.open_session(
             home_seed=int(opts["home_seed"]),

@@ -128,6 +128,21 @@ const imgnav = (() => {
         el("label", { text: "Gallery: tap an object to use its picture as the goal photo" }), this.gallery,
       );
       this.homeSel.addEventListener("change", () => this.renderHome());
+      this.episodeSel = null;
+      if ((this.sim.episodes || []).length) {
+        this.episodeSel = el("select", { id: "sim-episode", name: "episode" });
+        this.episodeSel.append(el("option", { value: "", text: "none: choose home, start and photo" }));
+        for (const e of this.sim.episodes) this.episodeSel.append(el("option", { value: e.id, text: e.label }));
+        this.episodeSel.addEventListener("change", async () => {
+          const e = this.sim.episodes.find((x) => x.id === this.episodeSel.value);
+          this.homeSel.disabled = this.startSel.disabled = !!e;
+          if (e) {
+            this.clearGallery();
+            this.onGalleryPick(await (await fetch(e.goal_image_url)).blob(), { label: `${e.id} goal image`, item: "" });
+          }
+        });
+        this.simBox.append(el("label", { for: "sim-episode", text: "Or an episode (fixes home, start and target)" }), this.episodeSel);
+      }
       this.renderHome();
     }
 
@@ -162,7 +177,9 @@ const imgnav = (() => {
 
     fill(form) {
       form.append("backend", this.backendSel.value);
-      if (this.backendSel.value === "sim" && this.homeSel) {
+      if (this.backendSel.value === "sim" && this.episodeSel && this.episodeSel.value) {
+        form.append("episode", this.episodeSel.value);
+      } else if (this.backendSel.value === "sim" && this.homeSel) {
         form.append("home", this.homeSel.value);
         form.append("start", this.startSel.value);
         if (this.galleryItem) form.append("gallery_item", this.galleryItem);

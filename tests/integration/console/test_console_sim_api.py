@@ -156,3 +156,32 @@ def test_bad_simulator_options(client: TestClient) -> None:
         assert fragment in resp.json()["detail"]["message"], (data, resp.json())
     assert client.get("/api/sim/gallery/home-0/..%2F..%2Fcatalog.json").status_code == 404
     assert client.get(f"/api/sim/gallery/home-{HOME_SEED}/catalog.json").status_code == 404
+
+
+def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path: Path) -> None:
+    from agent.types import Pose2D
+    from console.context import Console, ConsoleConfig
+    from console.sim_provider import SimProvider, SimProviderConfig
+    from sim.episodes import Episode, save_episode_set
+
+    eps = tmp_path / "eps"
+    (eps / "goals").mkdir(parents=True)
+    shutil.copy(next((sim_data_dir / "sim" / f"home-{HOME_SEED}").glob("*.png")), eps / "goals" / "e0.png")
+    episode = Episode("val-test-0", "val", 12345, Pose2D(1.0, 1.0, 0.0), 0, "chair", "goals/e0.png", ((2.0, 2.0),), 1.5)
+    save_episode_set(eps, "val", 0, [episode], {})
+    data = tmp_path / "data"
+    shutil.copytree(sim_data_dir / "sim", data / "sim")
+    provider = SimProvider(data, SimProviderConfig(home_seeds=(HOME_SEED,), episodes_dir=eps))
+    console = Console(ConsoleConfig(data_dir=data, viewer=None), {"sim": provider})
+    with TestClient(create_app(console)) as client:
+        desc = client.get("/api/backends/sim").json()
+        assert [e["id"] for e in desc["episodes"]] == ["val-test-0"]
+        png = client.get(desc["episodes"][0]["goal_image_url"])
+        assert png.status_code == 200
+        resolved = provider.resolve({"episode": "val-test-0"}, 0, "")
+        assert resolved.target["instance_id"] == 0 and resolved.target["identified_by"] == "episode"
+        assert resolved.options["home_seed"] == 12345 and resolved.options["start_pose_world"] == [1.0, 1.0, 0.0]
+        for data_, fragment in [({"episode": "nope"}, "no episode"), ({"episode": "val-test-0", "home": "home-0"}, "fixes home")]:
+            resp = client.post("/api/runs", files={"goal_image": ("g.png", png.content, "image/png")}, data=data_)
+            assert resp.status_code == 422 and fragment in resp.json()["detail"]["message"]
+        assert client.get("/api/sim/episodes/..%2F..%2Fetc/goal.png").status_code == 404
