@@ -23,7 +23,7 @@ from sim.home import WALL_HEIGHT_M, HomeSpec, Part, Room, SceneObject
 from sim.placement import RoomPlacer
 from sim.textures import NATURAL_IMAGES, Material
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 _SLOT_FAMILIES = {
     "fabric": ("fabric", 0.5), "fabric2": ("fabric", 0.4), "wood": ("wood", 0.6), "leaves": ("leaves", 0.4),

@@ -37,6 +37,7 @@ from sim.geometry import FootprintIndex, NavGrid
 from sim.home import FOLIAGE_JITTER, HomeSpec, Part, SceneObject
 from sim.scene_gen import generate_home
 from sim.textures import texture_path
+from sim.visibility import ViewCuller
 
 log = logging.getLogger(__name__)
 
@@ -71,12 +72,18 @@ def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
 class SimWorld:
     """A built home. Not thread-safe; one PyBullet client per world."""
 
-    def __init__(self, home: HomeSpec) -> None:
+    def __init__(self, home: HomeSpec, cull: bool = True) -> None:
+        """cull: skip drawing rooms the camera cannot see (identical images, faster renders)."""
         t0 = time.perf_counter()
         self.home = home
         self._client = pb.connect(pb.DIRECT)  # visual meshes: rendering
         self._ray_client = pb.connect(pb.DIRECT)  # collision shapes: ray tests
         self._ray_body_to_object: dict[int, int] = {}
+        self.cull = cull
+        self._cull_groups: list[tuple[frozenset[int], int]] = []
+        self._links: dict[int, int] = {}
+        self._shown: dict[int, bool] = {}
+        self._culler: ViewCuller | None = None
         self._textures: dict[str, int] = {}
         self.body_to_object: dict[int, int] = {}
         self.object_to_body: dict[int, int] = {}
@@ -129,6 +136,7 @@ class SimWorld:
                 pb.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.indices.tolist(),
                 uvs=mesh.uvs.tolist(), normals=mesh.normals.tolist(), physicsClientId=c)))
         body = self._multibody(c, [(v, -1) for _, v in vis])
+        self._links[body] = len(vis)
         for link, (key, _) in enumerate(vis):
             pb.changeVisualShape(body, link, textureUniqueId=self._textures[key], rgbaColor=[1, 1, 1, 1], physicsClientId=c)
         if not collide:
@@ -146,16 +154,56 @@ class SimWorld:
         return body, self._multibody(rc, [(-1, s) for s in col])
 
     def _build(self) -> None:
-        for key in sorted(self.home.materials):
+        home = self.home
+        for key in sorted(home.materials):
             self._texture(key)
-        self._body(self.home.walls)
-        self._body(self.home.floors)
-        self._body([self.home.ceiling], collide=False)
-        for obj in self.home.objects:
+        # Architecture is split by room so that rooms a camera cannot see can be skipped
+        # (sim.visibility): walls grouped by the rooms they bound, floor and ceiling per room.
+        by_rooms: dict[frozenset[int], list[Part]] = defaultdict(list)
+        for w in home.walls:
+            x0, y0, x1, y1 = w.footprint().bounds()
+            touching = frozenset(r.index for r in home.rooms
+                                 if x0 <= r.rect_m[2] + 1e-6 and r.rect_m[0] <= x1 + 1e-6 and y0 <= r.rect_m[3] + 1e-6
+                                 and r.rect_m[1] <= y1 + 1e-6)
+            by_rooms[touching].append(w)
+        for rooms, parts in sorted(by_rooms.items(), key=lambda kv: sorted(kv[0])):
+            self._cull_groups.append((rooms, self._body(parts)[0]))
+        floors: dict[int, list[Part]] = defaultdict(list)
+        for f in home.floors:
+            room = home.room_at(f.center_xyz_m[0], f.center_xyz_m[1])
+            floors[room.index if room else -1].append(f)
+        for ri, parts in sorted(floors.items()):
+            self._cull_groups.append((frozenset([ri]) if ri >= 0 else frozenset(), self._body(parts)[0]))
+        c = home.ceiling
+        for room in home.rooms:
+            x0, y0, x1, y1 = room.rect_m
+            part = Part("box", ((x0 + x1) / 2, (y0 + y1) / 2, c.center_xyz_m[2]), (x1 - x0, y1 - y0, c.size_xyz_m[2]),
+                        0.0, c.material, solid=False)
+            self._cull_groups.append((frozenset([room.index]), self._body([part], collide=False)[0]))
+        for obj in home.objects:
             body, ray_body = self._body(obj.parts)
             self.body_to_object[body] = obj.object_id
             self.object_to_body[obj.object_id] = body
             self._ray_body_to_object[ray_body] = obj.object_id
+            self._cull_groups.append((frozenset([obj.room_index]), body))
+
+    def _cull(self, eye_xy: tuple[float, float], yaw_rad: float, pitch_rad: float, camera: CameraSpec) -> None:
+        """Hide the bodies of rooms the camera cannot see (``sim.visibility``): TinyRenderer
+        rasterises every front-facing triangle in view, hidden or not."""
+        if not self.cull:
+            return
+        if self._culler is None:
+            self._culler = ViewCuller(self.home)
+        visible: set[int] | None = self._culler.visible_rooms(eye_xy, yaw_rad, pitch_rad, camera.hfov_deg,
+                                                              camera.vfov_deg, camera.width_px)
+        if not visible:
+            visible = None  # outside every room: draw everything
+        for rooms, body in self._cull_groups:
+            show = visible is None or not rooms or bool(rooms & visible)
+            if self._shown.get(body, True) != show:
+                for link in range(self._links[body]):
+                    pb.changeVisualShape(body, link, rgbaColor=[1, 1, 1, 1 if show else 0], physicsClientId=self._client)
+                self._shown[body] = show
 
     # --- queries ---------------------------------------------------------------
 
@@ -207,6 +255,7 @@ class SimWorld:
                     camera: CameraSpec) -> Render:
         """Render from any camera pose (yaw CCW from +x, pitch positive down)."""
         eye = np.asarray(eye_xyz, dtype=np.float64)
+        self._cull((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera)
         forward, up = camera_axes(yaw_rad, pitch_rad)
         view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=self._client)
         proj = pb.computeProjectionMatrixFOV(camera.vfov_deg, camera.width_px / camera.height_px, camera.near_m,
