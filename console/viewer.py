@@ -169,6 +169,7 @@ class Viewer:
                     {"label": "tau", "stroke": "#d62728", "width": 1, "dash": [6, 4]},
                 ),
                 title="re-ID score vs tau",
+                scales={"x": {"time": False}},  # x is the step number, not a timestamp
                 aspect=1.6,
             )
 

@@ -118,6 +118,11 @@
   let refreshTimer = null;
   imgnav.follow("/api/events", (ev) => {
     if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load(); return; }
+    if (ev.kind === "step") {  // keep the active run's row current without reloading the list
+      const row = $("runs").querySelector(`tr[data-run="${ev.run_id}"]`);
+      if (row) row.children[4].textContent = String(ev.step + 1);
+      return;
+    }
     if (ev.kind === "status") {
       log(`run ${ev.run_id}: ${ev.status}${ev.outcome ? ` - ${ev.outcome} (${ev.detail || ""})` : ""}`);
       clearTimeout(refreshTimer);

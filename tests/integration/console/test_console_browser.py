@@ -118,3 +118,21 @@ def test_console_viewer_renders_and_updates_during_a_run(browser, live_console: 
         page.screenshot(path=str(ARTIFACTS / "console_after_run.png"))
     finally:
         context.close()
+
+
+def test_viewer_on_a_phone_screen(browser, live_console: LiveServer, tmp_path: Path) -> None:
+    """The 3D viewer itself on a phone-sized screen: canvas and the stop button are there."""
+    p, b = browser
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    context = b.new_context(**p.devices["Pixel 7"])
+    page = context.new_page()
+    try:
+        viewer_port = live_console.console.viewer.port
+        page.goto(f"http://127.0.0.1:{viewer_port}/")
+        canvas = page.wait_for_selector("canvas", timeout=60_000)
+        box = poll(lambda: canvas.bounding_box(), lambda bb: bb is not None and bb["width"] > 100, 60, "canvas")
+        assert box["width"] <= 500  # laid out for the phone's width
+        page.wait_for_selector("text=Stop the run", timeout=60_000)
+        page.screenshot(path=str(ARTIFACTS / "viewer_phone.png"))
+    finally:
+        context.close()
