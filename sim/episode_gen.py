@@ -6,8 +6,8 @@ for k = 0, 1, ... (disjoint ranges per split). Each scene yields up to
 categories so rarer ones (toilet, tv, couch, bed) are well represented.
 
 Difficulty: episodes cycle through geodesic-distance bins (easy 1.5-4 m, medium
-4-8 m, hard > 8 m); medium and hard starts are taken in another room than the
-goal when the home allows, so many episodes cross rooms.
+4-8 m, hard > 8 m); easy starts are taken in the goal's room and medium and hard
+ones in another room when the home allows, so most episodes cross rooms.
 
 Validity: the start is collision-free, in the same free component as the
 viewpoints, and the goal region is reachable on the robot's discrete motion
@@ -98,10 +98,12 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
             in_bin = d >= cfg.difficulty_bins_m[0][1]
             name = "any"
         cand = np.flatnonzero(in_bin)
-        if name in ("medium", "hard") and goal_room is not None:
-            other = [c for c in cand if home.room_at(*free_xy[c]) is not goal_room]
-            if other:
-                cand = np.array(other)
+        if goal_room is not None:
+            # medium and hard episodes start in another room; easy ones in the goal's room when they can
+            same = np.array([home.room_at(*free_xy[c]) is goal_room for c in cand], dtype=bool)
+            pick = same if name == "easy" else ~same
+            if name != "any" and pick.any():
+                cand = cand[pick]
         goal = ViewpointGoal(vp)
         start = None
         for _ in range(cfg.start_attempts):

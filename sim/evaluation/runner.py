@@ -53,7 +53,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from agent.types import Action, BackendError
+from agent.types import Action
 from sim.backend import SimBackend
 from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
 from sim.evaluation.registry import AgentSpec, get_spec
@@ -83,6 +83,7 @@ def run_episode(world: SimWorld, episode_set: EpisodeSet, episode: Episode, spec
     backend = SimBackend.for_episode(world, episode, episode_set.goal_image_path(episode))
     agent_s = sim_s = 0.0
     error = None
+    observer = None
     try:
         agent = spec.make_agent(args, backend.oracle)
         observer = spec.make_observer(args, episode, backend.oracle) if spec.make_observer else None
@@ -103,10 +104,9 @@ def run_episode(world: SimWorld, episode_set: EpisodeSet, episode: Episode, spec
                 break
             obs = backend.observe()
             sim_s += time.perf_counter() - ts
-    except (Exception, BackendError) as exc:  # recorded, counted as a failure, never silent
+    except Exception as exc:  # agent or backend failure: recorded, counted as a failure, logged
         if fail_fast:
             raise
-        observer = locals().get("observer")
         error = f"{type(exc).__name__}: {exc}"
         log.error("episode %s failed: %s\n%s", episode.episode_id, error, traceback.format_exc())
         if not backend.done:
