@@ -34,6 +34,18 @@ def generator_version() -> Any:
     return GENERATOR_VERSION
 
 
+def home_fingerprint(seed: int, n_rooms: int) -> str:
+    """A digest of the generated home (rooms, objects and their poses): the gallery cache is
+    rebuilt when the generator's output changes, even without a version bump."""
+    import hashlib
+
+    from sim.scene_gen import generate_home
+
+    home = generate_home(seed, n_rooms=n_rooms)
+    facts = [(r.name, r.rect_m) for r in home.rooms] + [(o.object_id, o.category, o.variant, o.pose_xy_yaw) for o in home.objects]
+    return hashlib.sha256(repr(facts).encode()).hexdigest()[:16]
+
+
 def _world(seed: int, n_rooms: int) -> Any:
     from sim.scene_gen import generate_home
     from sim.world import SimWorld

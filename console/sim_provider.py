@@ -122,6 +122,7 @@ class SimProvider:
         return {
             "catalog_version": CATALOG_VERSION,
             "simulator": sim_adapter.generator_version(),
+            "homes": [sim_adapter.home_fingerprint(seed, self.config.n_rooms) for seed in self.config.home_seeds],
             "seeds": list(self.config.home_seeds),
             "n_rooms": self.config.n_rooms,
             "views_per_instance": self.config.views_per_instance,

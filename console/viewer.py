@@ -109,6 +109,9 @@ class Viewer:
         # The share button asks an outside service for a public tunnel: never offer it.
         self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="medium")
         self.server.scene.set_up_direction("+z")
+        # Look down on the start area from behind and above (a home is ~5-10 m across).
+        self.server.initial_camera.position = (-4.0, -4.0, 7.0)
+        self.server.initial_camera.look_at = (1.5, 1.5, 0.0)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._latest: StepRecord | None = None
@@ -337,7 +340,9 @@ class Viewer:
         i0, i1, j0, j1 = ii.min(), ii.max() + 1, jj.min(), jj.max() + 1
         rgb = layers_rgb(snap)[i0:i1, j0:j1]
         alpha = np.where(known[i0:i1, j0:j1], 235, 0).astype(np.uint8)
-        rgba = np.concatenate([rgb, alpha[..., None]], axis=2)[::-1]  # row 0 = highest y = top of the plane
+        # viser draws image row 0 towards the plane's -y (OpenCV image convention), which is
+        # exactly grid row 0 = lowest y: no flip.
+        rgba = np.concatenate([rgb, alpha[..., None]], axis=2)
         res = snap.resolution_m
         w_m, h_m = (j1 - j0) * res, (i1 - i0) * res
         centre = (snap.origin_xy_m[0] + j0 * res + w_m / 2, snap.origin_xy_m[1] + i0 * res + h_m / 2, 0.0)

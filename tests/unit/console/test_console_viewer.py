@@ -66,3 +66,22 @@ def test_viewer_publishes_and_throttles() -> None:
         assert 2 <= viewer.n_published <= 1 + len(recs)
     finally:
         viewer.close()
+
+
+def test_occupancy_plane_is_not_mirrored() -> None:
+    """viser shows image row 0 at the plane's -y side; grid row 0 is the lowest y, so the
+    texture must go out unflipped: a goal cell at high y stays at the top rows."""
+    recs = records(3)
+    viewer = Viewer(ViewerConfig(port=0))
+    try:
+        viewer.run_started(recs[0].run_id, recs[0].goal_rgb, {})
+        viewer.publish(recs[-1], with_map=True)
+        snap = recs[-1].record.map
+        image = viewer._occupancy.image
+        known = snap.explored | snap.obstacle
+        ii, _ = np.nonzero(known)
+        # the scripted map's obstacle row is its lowest known row (i = 10): first texture row
+        assert (image[0, :, :3] == np.array([70, 78, 110])).all(axis=1).any()
+        assert ii.min() == 10
+    finally:
+        viewer.close()
