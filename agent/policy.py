@@ -133,6 +133,9 @@ class ModIINAgent:
             score = result.score
             detected = score >= self.tau
         timings["reid"] = _ms(t)
+        if result is not None:
+            timings["reid_extract"] = result.extract_ms
+            timings["reid_match"] = result.match_ms
 
         # 3. localisation
         t = time.perf_counter()

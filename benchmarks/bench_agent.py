@@ -1,0 +1,104 @@
+"""Median per-step latency of the Mod-IIN agent and of each of its parts on val episodes.
+
+    .venv/bin/python benchmarks/bench_agent.py [--episodes DIR] [--count 3] [--steps 150] [--threads 2]
+
+Runs the default agent (agent/configs/sim.yaml, XFeat + LighterGlue) through the real
+simulator on the first ``--count`` episodes of a val episode set (a small one is generated
+into a temporary directory when none is given) for at most ``--steps`` steps each, and
+prints the median milliseconds per step of: the whole ``act`` (total) and its parts
+mapping, reid (with its feature extraction and matching), localisation and planning; the
+simulator's render time is reported apart. The target is total <= 150 ms on 2 cores.
+Timings from a loaded machine are not final: run it on a quiet one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+PARTS = ("mapping", "reid", "reid_extract", "reid_match", "localisation", "planning", "total")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--episodes", default=None, help="val episode set (default: generate 3 into a temp dir)")
+    p.add_argument("--count", type=int, default=3)
+    p.add_argument("--steps", type=int, default=150)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--config", default="sim")
+    args = p.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+
+    import torch
+
+    from agent.config import load_agent_config
+    from agent.policy import ModIINAgent
+    from agent.types import Action
+    from sim.backend import SimBackend
+    from sim.episodes import load_episode_set
+    from sim.world import SimWorld
+
+    torch.set_num_threads(args.threads)
+    tmp = None
+    ep_dir = args.episodes
+    if ep_dir is None:
+        from sim.episode_gen import generate_episode_set
+
+        tmp = tempfile.TemporaryDirectory()
+        ep_dir = tmp.name
+        generate_episode_set("val", 0, args.count, ep_dir, progress=False)
+    es = load_episode_set(ep_dir)
+    if es.split != "val":
+        print(f"warning: {ep_dir} is a {es.split} set, not val", file=sys.stderr)
+    cfg = load_agent_config(args.config)
+    from dataclasses import replace
+
+    cfg = replace(cfg, reid=replace(cfg.reid, num_threads=args.threads))
+    agent = ModIINAgent(cfg)
+    samples: dict[str, list[float]] = {k: [] for k in PARTS}
+    sim_ms: list[float] = []
+    worlds: dict[int, SimWorld] = {}
+    for ep in list(es.episodes)[: args.count]:
+        world = worlds.get(ep.scene_seed) or worlds.setdefault(ep.scene_seed, SimWorld.from_seed(ep.scene_seed))
+        backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep))
+        obs = backend.reset()
+        agent.reset(obs.goal_image)
+        for _ in range(args.steps):
+            action = agent.act(obs)
+            rec = agent.last_record
+            for k in PARTS:
+                if rec is not None and k in rec.timings_ms:
+                    samples[k].append(float(rec.timings_ms[k]))
+            t = time.perf_counter()
+            backend.apply(action)
+            if backend.done or action == Action.STOP:
+                break
+            obs = backend.observe()
+            sim_ms.append((time.perf_counter() - t) * 1e3)
+        backend.close()
+    for w in worlds.values():
+        w.close()
+    n = len(samples["total"])
+    print(f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
+          f"{cfg.reid.goal_max_keypoints} goal), torch threads {args.threads}, {n} steps of "
+          f"{min(args.count, len(es.episodes))} {es.split} episodes")
+    for k in PARTS:
+        if samples[k]:
+            print(f"  {k:<13} median {statistics.median(samples[k]):7.1f} ms   p90 "
+                  f"{sorted(samples[k])[int(0.9 * (len(samples[k]) - 1))]:7.1f} ms")
+    if sim_ms:
+        print(f"  (simulator render+step median {statistics.median(sim_ms):.1f} ms, not part of the agent)")
+    if tmp is not None:
+        tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+import argparse
+
+import numpy as np
+import pytest
+
+from agent.types import Pose2D
+from sim.evaluation.modiin import Attribution, build_config, failure_distribution, summarize, table_row
+
+
+def ns(**kw):
+    base = dict(modiin_config="sim", modiin_reid="conf", modiin_loc="mask", modiin_matcher=None, modiin_tau=None,
+                modiin_set=[], modiin_oracle_min_px=400, modiin_seen_px=2300, modiin_threads=None, workers=2)
+    base.update(kw)
+    return argparse.Namespace(**base)
+
+
+def test_variants_map_to_config():
+    c = build_config(ns())
+    assert c.reid.score == "conf" and c.policy.reid_source == "matcher" and c.segmentation.source == "grabcut"
+    assert c.reid.num_threads == 1  # 2 cores / 2 workers
+    c = build_config(ns(modiin_reid="count", modiin_loc="crop", workers=1))
+    assert c.reid.score == "count" and c.segmentation.source == "crop" and c.reid.num_threads == 2
+    c = build_config(ns(modiin_reid="oracle", modiin_loc="oracle"))
+    assert c.policy.reid_source == "oracle" and c.policy.localisation_source == "oracle"
+    c = build_config(ns(modiin_set=["policy.verify=false", "reid.obs_max_keypoints=512"], modiin_tau=3.5))
+    assert c.policy.verify is False and c.reid.obs_max_keypoints == 512 and c.reid.tau == 3.5
+    with pytest.raises(ValueError):
+        build_config(ns(modiin_set=["nosuch.key=1"]))
+    with pytest.raises(ValueError):
+        build_config(ns(modiin_set=["policy.not_a_field=1"]))
+
+
+class FakeOracle:
+    start_pose_world = Pose2D(1.0, 0.0, 0.0)
+
+    def __init__(self):
+        self.px = 0
+
+    def goal_mask(self):
+        m = np.zeros((10, 10000), bool)
+        m.reshape(-1)[: self.px] = True
+        return m
+
+
+class Rec:
+    def __init__(self, detected, pts, mode="explore"):
+        self.goal_detected = detected
+        self.goal_points_xyz = np.asarray(pts, np.float32).reshape(-1, 3)
+        self.mode, self.reason, self.planner_error, self.timings_ms = mode, "", None, {"total": 1.0}
+
+
+def attribution(steps):
+    """steps: list of (goal pixels in view, detected, candidate points in the start frame)."""
+    a = Attribution.__new__(Attribution)
+    a.oracle = FakeOracle()
+    a.seen_px, a.variant = 2300, "v"
+    a.goal_bounds_world = (4.0, 4.0, 5.0, 5.0)  # world frame; start frame = world - (1, 0)
+    a.steps = a.seen_steps = a.det_seen = a.det_unseen = a.planner_errors = 0
+    a.first_seen = a.first_detection = a.last = None
+    from collections import Counter
+    a.modes, a.timings = Counter(), {}
+    obs = type("O", (), {"step": 0})()
+    for k, (px, det, pts) in enumerate(steps):
+        a.oracle.px = px
+        obs.step = k
+        a.on_step(obs, None, Rec(det, pts))
+    return a
+
+
+ON_GOAL = [[3.5, 4.5, 0.5]]  # start frame: world (4.5, 4.5) is inside the goal footprint
+OFF_GOAL = [[-3.0, -3.0, 0.5]]
+
+
+def test_attribution_classes():
+    assert attribution([(0, False, [])] * 5).cause(False) == "exploration"
+    assert attribution([(5000, False, [])] * 5).cause(False) == "reid_false_negative"
+    assert attribution([(0, True, OFF_GOAL)]).cause(False) == "reid_false_positive"
+    assert attribution([(5000, True, OFF_GOAL)]).cause(False) == "localisation"
+    assert attribution([(5000, True, ON_GOAL)]).cause(False) == "local_navigation"
+    assert attribution([(5000, True, ON_GOAL)]).cause(True) is None
+
+
+def test_distribution_and_table():
+    recs = [dict(success=True, failure_cause=None), dict(success=False, failure_cause="exploration"),
+            dict(success=False, failure_cause="exploration"), dict(success=False, failure_cause="localisation")]
+    d = failure_distribution(recs)
+    assert d["failed"] == 3 and d["counts"] == {"exploration": 2, "localisation": 1}
+    assert d["shares"]["exploration"] == pytest.approx(0.667, abs=1e-3)
+    row = table_row("x", {"ne": 1.234, "max_st": 0.1, "sr": 0.5, "spl": 0.25, "episodes": 4})
+    assert row == "| x | 1.23 | 0.100 | 0.500 | 0.250 | 4 |"
+    full = [dict(r, ne=1.0, spl=0.1, max_steps_reached=False, category="chair", variant="v",
+                 modiin={"median_ms": {"total": 10.0}}) for r in recs]
+    s = summarize(full)
+    assert s["agent_median_ms_per_step"]["total"] == 10.0 and "| v |" in s["table_md"]
