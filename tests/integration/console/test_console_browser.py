@@ -73,11 +73,11 @@ def test_phone_choose_photo_start_and_follow(browser, live_console: LiveServer, 
         page.wait_for_function("document.getElementById('run-id').textContent.length === 12")
         run_id = page.inner_text("#run-id")
         # progress arrives over the status stream: the step counter moves
-        poll(lambda: page.inner_text("#run-step"), lambda t: t not in ("-", "") and int(t.split()[0]) >= 2, 120, "progress")
+        poll(lambda: page.inner_text("#run-step"), lambda t: t not in ("-", "") and int(t.split()[0]) >= 2, 300, "progress")
         page.screenshot(path=str(ARTIFACTS / "phone_run.png"), full_page=True)
         page.click("#stop")
         page.wait_for_function(
-            "['stopped','finished'].some(s => document.getElementById('run-badge').textContent.includes(s))", timeout=120_000
+            "['stopped','finished'].some(s => document.getElementById('run-badge').textContent.includes(s))", timeout=300_000
         )
         page.screenshot(path=str(ARTIFACTS / "phone_stopped.png"), full_page=True)
         row = live_console.console.store.get_run(run_id)
@@ -106,14 +106,14 @@ def test_console_viewer_renders_and_updates_during_a_run(browser, live_console: 
         poll(lambda: live_console.console.manager.active_run_id, lambda r: r is not None, 30, "active run")
         run_id = live_console.console.manager.active_run_id
         # the viewer's own status text follows the steps...
-        frame.wait_for_selector("text=/step \\d+/", timeout=120_000)
+        frame.wait_for_selector("text=/step \\d+/", timeout=300_000)
         first = hashlib.sha256(canvas.screenshot()).hexdigest()
         # ...and the 3D canvas changes as the robot moves and the map grows
-        poll(lambda: hashlib.sha256(canvas.screenshot()).hexdigest(), lambda h: h != first, 120, "canvas update")
-        poll(lambda: live_console.console.store.get_run(run_id)["n_steps"], lambda n: n >= 4, 120, "four steps")
+        poll(lambda: hashlib.sha256(canvas.screenshot()).hexdigest(), lambda h: h != first, 300, "canvas update")
+        poll(lambda: live_console.console.store.get_run(run_id)["n_steps"], lambda n: n >= 4, 300, "four steps")
         page.screenshot(path=str(ARTIFACTS / "console_live_run.png"))
         page.click("#stop")
-        poll(lambda: live_console.console.store.get_run(run_id)["status"], lambda s: s in ("stopped", "finished"), 120, "stop")
+        poll(lambda: live_console.console.store.get_run(run_id)["status"], lambda s: s in ("stopped", "finished"), 300, "stop")
         page.wait_for_selector("#artifacts img", timeout=60_000)
         page.screenshot(path=str(ARTIFACTS / "console_after_run.png"))
     finally:
