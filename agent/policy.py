@@ -97,8 +97,8 @@ class ModIINAgent:
         self._scan_left: int = -1  # >=0 while scanning at a stop point
         self._unreachable_goal = 0
         self._rescans_left = self.config.policy.max_rescans
-        self._blocked: set[tuple[int, int, int]] = set()
-        self._blocked_repeats = 0  # (cell i, cell j, heading bin) of failed forward moves
+        self._blocked: set[tuple[int, int, int]] = set()  # (cell i, cell j, heading bin) of failed forward moves
+        self._blocked_repeats = 0
         self._rescan_steps = 0
         self._record = None
 
