@@ -87,3 +87,12 @@ def test_visited_marks_the_segment():
     grid.mark_visited((0.0, 0.0), (0.25, 0.0))
     xy = grid.ij_to_xy(np.argwhere(grid.layers.visited))
     assert xy[:, 0].min() < 0.03 and xy[:, 0].max() > 0.22
+
+
+def test_the_robot_footprint_clears_misplaced_collision_marks():
+    grid = GridMap()
+    grid.mark_collision(Pose2D(0.0, 0.0, 0.0))  # band 0.17-0.27 m ahead
+    assert grid.layers.collision[cell(grid, 0.22, 0.0)]
+    grid.mark_visited((0.0, 0.0), (0.22, 0.0))  # ... but the robot then stood there
+    assert not grid.layers.collision[cell(grid, 0.22, 0.0)]
+    assert grid.layers.visited[cell(grid, 0.22, 0.0)]

@@ -141,3 +141,17 @@ def test_deployment_configs_load_strictly():
         assert isinstance(load_agent_config(name), AgentConfig)
     with pytest.raises(ConfigError):
         from_dict(AgentConfig, {"policy": {"stop_radius": 1.0}})
+
+
+def test_a_failed_forward_move_is_not_repeated():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-2.0, -1.0, 0.0), goal)
+    agent = ModIINAgent(oracle_config(look_around_turns=0), oracle_reid=world.goal_visible,
+                        oracle_ego_mask=world.goal_mask)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    key = agent._move_key(obs.pose)
+    agent._blocked.add(key)
+    from agent.planner import Plan
+    plan = Plan(Action.MOVE_FORWARD, (0, 0), (1.0, 0.0), 1.0, np.array([[0.0, 0.0], [0.5, 0.2], [1.0, 0.4]], np.float32))
+    assert agent._safe(plan, obs.pose) == Action.TURN_LEFT  # the path bends left
