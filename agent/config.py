@@ -36,6 +36,7 @@ class PolicyConfig:
     verify_scan_steps: int = 4  # turns (left, right, right, left) looking for a confirmation
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
+    approach_patience_steps: int = 60  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 1  # full turns when no frontier is reachable, before stopping as "exhausted"
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)

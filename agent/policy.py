@@ -96,6 +96,8 @@ class ModIINAgent:
         self._confirmed_xy: list[tuple[float, float]] = []  # close-range detections (verification)
         self._scan_left: int = -1  # >=0 while scanning at a stop point
         self._unreachable_goal = 0
+        self._approach_best_m, self._approach_stall = math.inf, 0
+        self._approach_xy: tuple[float, float] | None = None  # the candidate being approached
         self._rescans_left = self.config.policy.max_rescans
         self._blocked: set[tuple[int, int, int]] = set()  # (cell i, cell j, heading bin) of failed forward moves
         self._blocked_repeats = 0
@@ -231,6 +233,7 @@ class ModIINAgent:
         ij = cand.cells_ij[self.grid.in_bounds(cand.cells_ij)]
         rej[ij[:, 0], ij[:, 1]] = True
         L.blacklist |= region_within(rej, self.config.policy.reject_radius_m, self.grid.resolution_m)
+        self._approach_best_m, self._approach_stall = math.inf, 0
         self._scan_left = -1
         self._unreachable_goal = 0
 
@@ -294,6 +297,17 @@ class ModIINAgent:
             # keep looking around: the map may open a way (a new view, a cleared collision)
             return Action.TURN_LEFT, "approach", "goal not reachable yet", None, "goal", f"{exc.reason}: {exc}"
         self._unreachable_goal = 0
+        # No progress towards the candidate for too long (blocked by what the map does not
+        # show, or oscillating): give it up rather than spend the budget on it.
+        if self._approach_xy is None or math.dist(self._approach_xy, cand.centroid_xy_m) > 0.5:
+            self._approach_xy, self._approach_best_m, self._approach_stall = cand.centroid_xy_m, math.inf, 0
+        if plan.distance_m < self._approach_best_m - 0.05:
+            self._approach_best_m, self._approach_stall = plan.distance_m, 0
+        else:
+            self._approach_stall += 1
+            if self._approach_stall > pc.approach_patience_steps:
+                self._reject(cand, f"no progress for {self._approach_stall} steps")
+                return None
         return self._safe(plan, pose), "approach", "navigating to the goal candidate", plan, "goal", None
 
     def _explore(self, obs: Observation):
