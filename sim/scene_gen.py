@@ -3,7 +3,8 @@
 A home has 3-8 rooms joined by doorways (``sim.floorplan``), room-specific floors,
 furniture of the six goal categories in several shape variants (``sim.furniture``)
 with per-instance textures from per-category families, same-category distractors
-(dining chairs, several bedrooms and bathrooms, plants, TVs), and clutter: tables,
+(dining chairs, several bedrooms and bathrooms, plants, TVs) that sometimes come
+from one style and look alike (a set of dining chairs always does), and clutter: tables,
 shelves, counters, rugs, lamps, framed pictures with natural images (1-3 per room).
 Toilets sit on dark tiles in front of a dark panel (DESIGN section 8).
 
@@ -23,7 +24,7 @@ from sim.home import WALL_HEIGHT_M, HomeSpec, Part, Room, SceneObject
 from sim.placement import RoomPlacer
 from sim.textures import NATURAL_IMAGES, Material
 
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 _SLOT_FAMILIES = {
     "fabric": ("fabric", 0.5), "fabric2": ("fabric", 0.4), "wood": ("wood", 0.6), "leaves": ("leaves", 0.4),
@@ -51,7 +52,9 @@ class _Materials:
             self.images = list(self.rng.permutation(len(NATURAL_IMAGES)))
         return NATURAL_IMAGES[int(self.images.pop())]
 
-    def slots(self, local: list[F.LocalPart], aspect: float = 0.5625) -> dict[str, str]:
+    def slots(self, local: list[F.LocalPart], aspect: float = 0.5625, style: int | None = None) -> dict[str, str]:
+        """A material per slot; with ``style`` the colours and pattern kinds are those of the style
+        (a matching set) and only the layout of the features is the instance's own."""
         out: dict[str, str] = {}
         for p in local:
             if p.slot in out:
@@ -60,7 +63,8 @@ class _Materials:
                 out[p.slot] = self.new(p.slot, 1.0, image=self.image(), aspect=round(aspect, 4))
             else:
                 fam, tile = _SLOT_FAMILIES[p.slot]
-                out[p.slot] = self.new(fam, tile)
+                slot_style = -1 if style is None else (style * 31 + sorted(_SLOT_FAMILIES).index(p.slot)) % (2**31 - 1)
+                out[p.slot] = self.new(fam, tile, style=slot_style)
         return out
 
 
@@ -76,17 +80,28 @@ class _Furnisher:
 
     def __init__(self, rng: np.random.Generator, mats: _Materials) -> None:
         self.rng, self.mats = rng, mats
+        # Look-alike distractors, as in real homes: sometimes all of a home's toilets, plants,
+        # chairs or beds come from one style (same colours and pattern kind, own layout).
+        self.styles: dict[str, int] = {}
+        for category, p in (("toilet", 0.7), ("potted plant", 0.5), ("chair", 0.35), ("bed", 0.3), ("couch", 0.3)):
+            if rng.uniform() < p:
+                self.styles[category] = int(rng.integers(0, 2**30))
 
     def item(self, pl: RoomPlacer, category: str, variant: str, local: list[F.LocalPart], pose_fn, tries: int = 25,
-             is_instance: bool = False, **kw) -> bool:
-        mats = self.mats.slots(local)
+             is_instance: bool = False, style: int | None = None, **kw) -> bool:
+        mats = self.mats.slots(local, style=style if style is not None else self.styles.get(category))
         return _try(tries, lambda: pl.add(category, variant, local, pose_fn(), mats, is_instance, **kw))
 
-    def goal(self, pl: RoomPlacer, category: str, pose_fn, tries: int = 30) -> bool:
-        """Place a goal instance; ``pose_fn(local, attempt)`` proposes poses."""
-        variant, local = F.GOAL_BUILDERS[category](self.rng)
-        attempt = iter(range(tries))
-        return self.item(pl, category, variant, local, lambda: pose_fn(local, next(attempt)), tries, is_instance=True)
+    def goal(self, pl: RoomPlacer, category: str, pose_fn, tries: int = 36, redraws: int = 3) -> bool:
+        """Place a goal instance; ``pose_fn(local, attempt)`` proposes poses. The shape is
+        drawn again a few times (a single bed fits where a double does not)."""
+        per = tries // redraws
+        for r in range(redraws):
+            variant, local = F.GOAL_BUILDERS[category](self.rng)
+            attempt = iter(range(r * per, (r + 1) * per))
+            if self.item(pl, category, variant, local, lambda: pose_fn(local, next(attempt)), per, is_instance=True):
+                return True
+        return False
 
     def plant(self, pl: RoomPlacer) -> bool:
         return self.goal(pl, "potted plant", lambda local, k: pl.corner_pose(0.4) if self.rng.uniform() < 0.7 else pl.free_pose(0.4))
@@ -171,10 +186,11 @@ class _Furnisher:
             o = 0.36
             seats = [(0.0, td / 2 + o, math.pi), (0.0, -td / 2 - o, 0.0), (tw / 2 + o, 0.0, math.pi / 2), (-tw / 2 - o, 0.0, -math.pi / 2)]
             n = int(self.rng.integers(2, 5))
+            set_style = self.styles.get("chair", int(self.rng.integers(0, 2**30)))  # a matching set
             for lx, ly, lyaw in seats[:n]:
                 c, s = math.cos(tyaw), math.sin(tyaw)
                 pose = (tx + c * lx - s * ly, ty + s * lx + c * ly, tyaw + lyaw)
-                self.item(pl, "chair", variant, chair_local, lambda: pose, 1, is_instance=True)
+                self.item(pl, "chair", variant, chair_local, lambda: pose, 1, is_instance=True, style=set_style)
         if self.rng.uniform() < 0.5:
             self.plant(pl)
         self.pictures(pl, int(self.rng.integers(1, 3)))

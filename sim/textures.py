@@ -29,7 +29,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-TEXTURE_VERSION = 1
+TEXTURE_VERSION = 2
 TEX_PX = 256
 
 # Natural images that ship with scikit-image (no download): (loader name, is colour)
@@ -48,6 +48,8 @@ class Material:
             terracotta | metal | picture | screen | plain
     image: a ``NATURAL_IMAGES`` name for pictures and screens.
     aspect: the canvas height / width for pictures and screens.
+    style: materials sharing a style look alike (a set of dining chairs, a home's toilets)
+    but differ in the layout of their features, like similar real objects.
     rgb: base colour for ``plain`` (0-255).
     """
 
@@ -57,6 +59,7 @@ class Material:
     image: str = ""
     rgb: tuple[int, int, int] = (200, 200, 200)
     aspect: float = 0.75  # height / width of a picture or screen (the crop keeps it: no distortion)
+    style: int = -1  # >= 0: colours and pattern kind come from this seed, the layout from ``seed``
 
     @property
     def key(self) -> str:
@@ -85,8 +88,10 @@ def texture_path(material: Material) -> Path:
 
 def generate(material: Material) -> np.ndarray:
     """(TEX_PX, TEX_PX, 3) uint8 RGB (pictures keep their aspect: (h, w, 3))."""
-    rng = np.random.default_rng([material.seed, _FAMILY_IDS[material.family]])
-    img = _GENERATORS[material.family](rng, material)
+    fam = _FAMILY_IDS[material.family]
+    rng = np.random.default_rng([material.seed, fam])
+    srng = np.random.default_rng([material.style, fam, 99] if material.style >= 0 else [material.seed, fam, 98])
+    img = _GENERATORS[material.family](rng, material, srng)
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
@@ -127,25 +132,25 @@ def _palette(rng: np.random.Generator, n: int, sat: tuple[float, float] = (0.3, 
 # --- families ----------------------------------------------------------------
 
 
-def _fabric(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _fabric(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX
-    cols = _palette(rng, 3)
+    cols = _palette(srng, 3)
     img = np.ones((s, s, 3), np.float32) * cols[0]
     yy, xx = np.mgrid[0:s, 0:s]
-    kind = rng.integers(0, 6)
+    kind = srng.integers(0, 6)
     if kind == 0:  # stripes
-        k = int(rng.integers(3, 12))
-        band = ((np.sin(2 * math.pi * k * (yy if rng.uniform() < 0.5 else xx) / s) > rng.uniform(-0.5, 0.5)))
+        k = max(2, int(srng.integers(3, 12)) + int(rng.integers(-1, 2)))
+        band = ((np.sin(2 * math.pi * k * (yy if srng.uniform() < 0.5 else xx) / s) > rng.uniform(-0.5, 0.5)))
         img[band] = cols[1]
     elif kind == 1:  # plaid
-        k1, k2 = int(rng.integers(2, 7)), int(rng.integers(2, 7))
+        k1, k2 = int(srng.integers(2, 7)) + int(rng.integers(0, 2)), int(srng.integers(2, 7)) + int(rng.integers(0, 2))
         a = (np.sin(2 * math.pi * k1 * xx / s) > 0.3)
         b = (np.sin(2 * math.pi * k2 * yy / s) > 0.3)
         img[a] = img[a] * 0.5 + cols[1] * 0.5
         img[b] = img[b] * 0.5 + cols[2] * 0.5
     elif kind == 2:  # polka dots on a jittered lattice
-        k = int(rng.integers(3, 8))
-        r = int(s / k * rng.uniform(0.15, 0.35))
+        k = int(srng.integers(3, 8))
+        r = int(s / k * srng.uniform(0.15, 0.35))
         for gi in range(k):
             for gj in range(k):
                 cx = int((gj + 0.5 + 0.5 * (gi % 2)) * s / k + rng.normal(0, 2))
@@ -160,22 +165,30 @@ def _fabric(rng: np.random.Generator, m: Material) -> np.ndarray:
             col = tuple(float(c) for c in cols[int(rng.integers(1, 3))])
             _wrapped(lambda dx, dy: cv2.ellipse(img, (cx + dx, cy + dy), ax, ang, 0, 360, col, -1, cv2.LINE_AA))
     elif kind == 4:  # chevrons
-        k = int(rng.integers(2, 6))
+        k = int(srng.integers(2, 6))
         amp = s / k / 2
         band = ((yy + amp * np.abs(((xx * k * 2 / s) % 2) - 1)) * k * 2 / s).astype(int) % 2 == 0
         img[band] = cols[1]
     else:  # heathered solid with slubs
         img = _shade(img, 0.25 * _noise(rng, 12) + 0.15 * _noise(rng, 40))
+    # the instance's own marks (embroidery, wear, a stain): what tells a matching set apart
+    for _ in range(int(rng.integers(3, 9))):
+        cx, cy = int(rng.integers(0, s)), int(rng.integers(0, s))
+        r = int(rng.integers(5, 14))
+        col = tuple(float(c) for c in (cols[2] * rng.uniform(0.6, 1.2)))
+        pts = (np.array([[math.cos(a), math.sin(a)] for a in np.linspace(0, 2 * math.pi, int(rng.integers(3, 7)), endpoint=False)])
+               * r * rng.uniform(0.5, 1.0, (1, 1)) + [cx, cy]).astype(np.int32)
+        _wrapped(lambda dx, dy: cv2.fillPoly(img, [pts + [dx, dy]], col, cv2.LINE_AA))
     weave = 0.06 * np.sign(np.sin(xx * math.pi / 2) * np.sin(yy * math.pi / 2))
     return _shade(img, weave + 0.12 * _noise(rng, 6))
 
 
-def _wood(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _wood(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX
-    base = _hsv(rng.uniform(0.04, 0.11), rng.uniform(0.4, 0.75), rng.uniform(0.3, 0.8))
+    base = _hsv(srng.uniform(0.04, 0.11), srng.uniform(0.4, 0.75), srng.uniform(0.3, 0.8))
     yy, xx = np.mgrid[0:s, 0:s].astype(np.float32)
     warp = 10.0 * _noise(rng, 4) + 3.0 * _noise(rng, 16)
-    k = int(rng.integers(8, 20))
+    k = int(srng.integers(8, 20))
     grain = np.sin(2 * math.pi * k * (yy + warp) / s)
     img = np.ones((s, s, 3), np.float32) * base
     img = _shade(img, 0.18 * grain + 0.1 * _noise(rng, 8))
@@ -186,7 +199,7 @@ def _wood(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _planks(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _planks(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX * 2
     base = _hsv(rng.uniform(0.05, 0.1), rng.uniform(0.35, 0.7), rng.uniform(0.35, 0.8))
     n = int(rng.integers(6, 12))
@@ -204,7 +217,7 @@ def _planks(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _tiles(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _tiles(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX * 2
     n = int(rng.integers(3, 8))
     # dark tiles make light fixtures stand out (DESIGN section 8)
@@ -223,18 +236,18 @@ def _tiles(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _carpet(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _carpet(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(rng.uniform(), rng.uniform(0.2, 0.6), rng.uniform(0.3, 0.7))
     return _shade(img, 0.25 * _noise(rng, 60) + 0.15 * _noise(rng, 10))
 
 
-def _leaves(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _leaves(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX
-    h0 = rng.uniform(0.2, 0.38)
+    h0 = srng.uniform(0.2, 0.38)
     img = np.ones((s, s, 3), np.float32) * _hsv(h0, 0.7, 0.18)
     img = _shade(img, 0.3 * _noise(rng, 10))
-    variegated = rng.uniform() < 0.35
-    length = rng.uniform(8, 30)
+    variegated = srng.uniform() < 0.35
+    length = srng.uniform(8, 30)
     for _ in range(int(rng.integers(60, 120))):
         cx, cy = int(rng.integers(0, s)), int(rng.integers(0, s))
         ax = (int(length * rng.uniform(0.7, 1.3)), int(length * rng.uniform(0.2, 0.45)))
@@ -252,12 +265,12 @@ def _leaves(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _ceramic(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _ceramic(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     # Tinted, shaded, veined ceramic: a pure white fixture is nearly unmatchable (DESIGN section 8).
     s = TEX_PX
-    base = _hsv(rng.uniform(), rng.uniform(0.2, 0.5), rng.uniform(0.7, 0.9))
+    base = _hsv(srng.uniform(), srng.uniform(0.15, 0.45), srng.uniform(0.7, 0.9))
     img = _shade(np.ones((s, s, 3), np.float32) * base, 0.15 * _noise(rng, 4) + 0.05 * _noise(rng, 30))
-    vein_col = tuple(float(c) for c in _hsv(rng.uniform(), rng.uniform(0.3, 0.7), rng.uniform(0.2, 0.5)))
+    vein_col = tuple(float(c) for c in _hsv(srng.uniform(), srng.uniform(0.3, 0.7), srng.uniform(0.2, 0.5)))
     for _ in range(int(rng.integers(6, 14))):
         pts = np.cumsum(rng.normal(0, 9, (8, 2)), axis=0) + rng.integers(0, s, 2)
         pts_i = pts.astype(np.int32).reshape(-1, 1, 2)
@@ -266,24 +279,24 @@ def _ceramic(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _plastic(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _plastic(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(rng.uniform(), rng.uniform(0, 0.3), rng.uniform(0.08, 0.25))
     return _shade(img, 0.2 * _noise(rng, 50))
 
 
-def _metal(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _metal(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(rng.uniform(), rng.uniform(0, 0.15), rng.uniform(0.5, 0.8))
     brushed = cv2.resize(rng.uniform(-1, 1, (TEX_PX, 8)).astype(np.float32), (TEX_PX, TEX_PX))
     return _shade(img, 0.08 * brushed)
 
 
-def _terracotta(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _terracotta(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX
-    img = np.ones((s, s, 3), np.float32) * _hsv(rng.uniform(0.0, 0.12), rng.uniform(0.3, 0.8), rng.uniform(0.3, 0.85))
+    img = np.ones((s, s, 3), np.float32) * _hsv(srng.uniform(0.0, 0.12), srng.uniform(0.3, 0.8), srng.uniform(0.3, 0.85))
     img = _shade(img, 0.1 * _noise(rng, 20))
-    if rng.uniform() < 0.7:  # painted bands / zigzags (decorated pots)
-        col = tuple(float(c) for c in _palette(rng, 1)[0])
-        k = int(rng.integers(2, 6))
+    if srng.uniform() < 0.7:  # painted bands / zigzags (decorated pots)
+        col = tuple(float(c) for c in _palette(srng, 1)[0])
+        k = int(srng.integers(2, 6))
         for b in range(k):
             y = (b + 0.5) * s / k
             pts = np.array([[x, y + (8 if (x // 16) % 2 else -8) * rng.uniform(0, 1)] for x in range(0, s + 16, 16)], np.int32)
@@ -291,12 +304,12 @@ def _terracotta(rng: np.random.Generator, m: Material) -> np.ndarray:
     return img
 
 
-def _paint(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _paint(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(rng.uniform(), rng.uniform(0.03, 0.25), rng.uniform(0.75, 0.93))
     return _shade(img, 0.05 * _noise(rng, 6) + 0.02 * _noise(rng, 60))
 
 
-def _plain(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _plain(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = np.ones((16, 16, 3), np.float32) * np.array(m.rgb, np.float32)
     return img
 
@@ -316,7 +329,7 @@ def _natural(name: str) -> np.ndarray:
     return np.ascontiguousarray(img[..., :3])
 
 
-def _picture(rng: np.random.Generator, m: Material) -> np.ndarray:
+def _picture(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     img = _natural(m.image).astype(np.float32)
     h, w = img.shape[:2]
     cw = int(w * rng.uniform(0.55, 1.0))
@@ -334,8 +347,8 @@ def _picture(rng: np.random.Generator, m: Material) -> np.ndarray:
     return cv2.resize(img, (TEX_PX, max(int(round(TEX_PX * m.aspect)), 16)), interpolation=cv2.INTER_AREA)
 
 
-def _screen(rng: np.random.Generator, m: Material) -> np.ndarray:
-    return _picture(rng, m) * 0.9 + 10  # a lit screen: a little washed out
+def _screen(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
+    return _picture(rng, m, srng) * 0.9 + 10  # a lit screen: a little washed out
 
 
 _GENERATORS = {

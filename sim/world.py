@@ -90,7 +90,11 @@ class SimWorld:
         self._grids: dict[float, NavGrid] = {}
         x0, y0, x1, y1 = home.bounds_m
         self.footprints = FootprintIndex(home.solid_footprints(), (x0, y0, x1, y1))
-        self._build()
+        try:
+            self._build()
+        except BaseException:
+            self.close()  # do not leak the PyBullet clients
+            raise
         n_bodies = pb.getNumBodies(physicsClientId=self._client)
         self._seg_lut = np.full(n_bodies + 2, -1, dtype=np.int32)
         for body, obj in self.body_to_object.items():

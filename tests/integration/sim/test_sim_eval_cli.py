@@ -36,3 +36,20 @@ def test_eval_writes_records_and_resumes(small_episode_set: Path, tmp_path: Path
     # nothing left to do: a rerun adds nothing
     assert main(argv3) == 0
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 3
+
+
+def test_show_draws_a_map_with_the_path_and_a_goal_sheet(small_episode_set: Path, tmp_path: Path) -> None:
+    from sim.episodes import load_episode_set, read_rgb
+
+    out = tmp_path / "eval"
+    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "1", "--out", str(out)]) == 0
+    episode = load_episode_set(small_episode_set).episodes[0]
+    pics = tmp_path / "show"
+    assert main(["show", "--episodes", str(small_episode_set), "--episode", episode.episode_id, "--eval", str(out),
+                 "--out", str(pics)]) == 0
+    assert main(["show", "--episodes", str(small_episode_set), "--out", str(pics)]) == 0
+    assert main(["show", "--scene", str(episode.scene_seed), "--out", str(pics)]) == 0
+    for name in (f"map-{episode.episode_id}.png", f"goal-{episode.episode_id}.png", "goals.png", f"map-{episode.scene_seed}.png"):
+        img = read_rgb(pics / name)
+        assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10, name
+    assert main(["show", "--out", str(pics)]) == 2  # nothing to draw

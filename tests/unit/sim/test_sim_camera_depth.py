@@ -9,7 +9,7 @@ import pytest
 
 from agent.types import Pose2D
 from sim.camera import SIM_CAMERA, CameraSpec, depth_buffer_to_metres
-from sim.simple_homes import room_home
+from sim.simple_homes import box_object, room_home
 from sim.world import SimWorld
 
 
@@ -57,3 +57,28 @@ def test_sim_camera_matches_the_task() -> None:
     assert math.isclose(SIM_CAMERA.intrinsics.hfov_deg, 42.0)
     assert math.isclose(SIM_CAMERA.vfov_deg, 68.6, abs_tol=0.1)
     assert SIM_CAMERA.height_m == 1.31 and SIM_CAMERA.pitch_rad == 0.0
+
+
+def test_intrinsics_project_world_points_onto_their_pixels() -> None:
+    # A 0.2 m wide post 3 m ahead and 0.4 m to the left of a camera facing +x at (1, 5).
+    post = box_object(0, "chair", (4.0, 5.4), (0.2, 0.2, 2.4))
+    world = SimWorld(room_home(6.0, 10.0, [post]))
+    try:
+        k = SIM_CAMERA.intrinsics
+        r = world.render(Pose2D(1.0, 5.0, 0.0), SIM_CAMERA)
+        cols = np.flatnonzero((r.instance_ids == 0).any(axis=0))
+        # front face at x = 3.9 (Z = 2.9 m), back face at x = 4.1; sides at y = 5.5 / 5.3 (X = -0.5 / -0.3).
+        # Seen from the right of it: the leftmost pixel is the front-left edge, the rightmost the back-right one.
+        z = 2.9
+        u_left, u_right = k.cx + k.fx * (-0.5) / z, k.cx + k.fx * (-0.3) / 3.1
+        assert abs(cols.min() - u_left) <= 1.0 and abs(cols.max() + 1 - u_right) <= 1.0
+        # and a pixel's depth back-projects onto the post's front face
+        v = int(k.cy)
+        u = int(cols.mean())
+        assert r.depth_m[v, u] == pytest.approx(z, abs=0.01)
+        # the optical centre row sits at the camera height: the post's top edge (2.4 m) projects to
+        top = k.cy - k.fy * (2.4 - 1.31) / z
+        rows = np.flatnonzero(r.instance_ids[:, u] == 0)
+        assert abs(rows.min() - top) <= 1.0
+    finally:
+        world.close()
