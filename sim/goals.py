@@ -4,7 +4,8 @@ A goal camera is sampled like a person photographing the object: eye height
 0.8-1.7 m, 1-3 m from the object (more for large ones), mostly from its front
 half, looking at its centre with a little jitter, HFOV 60-90 deg. A sample is
 rejected when the instance is small (< ``min_coverage`` of the image), off-centre,
-occluded (few rays from the eye reach it) or cut by the image border; images
+occluded (few rays from the eye reach it), cut by the image border, or smaller in
+the image than another goal instance; images
 that also show a same-category instance are capped (a budget per call).
 
 ``sample_goal_images`` is the reusable per-instance sampler (episodes, the
@@ -64,6 +65,7 @@ class GoalSamplerConfig:
     eye_height_m: tuple[float, float] = (0.8, 1.7)
     hfov_deg: tuple[float, float] = (60.0, 90.0)
     front_probability: float = 0.75
+    same_room_share: float = 0.7  # of the attempts, in which the eye must be in the object's room
     attempts_per_image: int = 60
 
 
@@ -101,12 +103,18 @@ def sample_goal_images(world, instance_id: int, count: int, seed: int | tuple[in
         world._goal_eye_index = FootprintIndex(world.home.solid_footprints(), (x0, y0, x1, y1), 0.12, 2.0)
     eye_index: FootprintIndex = world._goal_eye_index
     out: list[GoalImage] = []
-    for _ in range(count * cfg.attempts_per_image):
+    home_room = world.home.rooms[obj.room_index] if 0 <= obj.room_index < len(world.home.rooms) else None
+    attempts = count * cfg.attempts_per_image
+    for attempt in range(attempts):
         if len(out) >= count:
             break
         eye, target, hfov = _propose(rng, obj, cfg)
-        if eye_index.collides(float(eye[0]), float(eye[1])) or world.home.room_at(float(eye[0]), float(eye[1])) is None:
+        eye_room = world.home.room_at(float(eye[0]), float(eye[1]))
+        if eye_index.collides(float(eye[0]), float(eye[1])) or eye_room is None:
             continue
+        if home_room is not None and eye_room is not home_room and not home_room.contains(float(eye[0]), float(eye[1])) \
+                and attempt < cfg.same_room_share * attempts:
+            continue  # people photograph an object from its own room; through a doorway only if they must
         hits = world.ray_objects(np.repeat(eye[None], len(targets), axis=0), targets)
         if np.mean(hits == instance_id) < cfg.min_visible_rays:
             continue
@@ -117,6 +125,9 @@ def sample_goal_images(world, instance_id: int, count: int, seed: int | tuple[in
         coverage = float(mask.mean())
         if not cfg.min_coverage <= coverage <= cfg.max_coverage:
             continue
+        ids = render.instance_ids[render.instance_ids >= 0]
+        if np.bincount(ids).argmax() != instance_id:
+            continue  # another goal instance (e.g. a chair in front of the couch) is the bigger subject
         rows, cols = np.nonzero(mask)
         n = cam.size_px
         if abs(cols.mean() / n - 0.5) > cfg.max_centre_offset or abs(rows.mean() / n - 0.5) > cfg.max_centre_offset:
