@@ -9,8 +9,8 @@ Difficulty: episodes cycle through geodesic-distance bins (easy 1.5-4 m, medium
 4-8 m, hard > 8 m); easy starts are taken in the goal's room and medium and hard
 ones in another room when the home allows, so most episodes cross rooms.
 
-Validity: the start is collision-free, in the same free component as the
-viewpoints, and the goal region is reachable on the robot's discrete motion
+Validity: the start is collision-free with 0.1 m to spare, in the same free
+component as the viewpoints, and the goal region is reachable on the robot's discrete motion
 lattice (a lattice A* search with the simulator's own collision-checked step).
 Episodes whose region the lattice cannot reach would be unsolvable with the
 task's actions, so they are not generated.
@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from agent.types import Pose2D
 from sim.episodes import SPLITS, Episode, r4, save_episode_set, scene_seed_for, write_rgb
@@ -50,6 +51,7 @@ class EpisodeGenConfig:
     # one episode in this many may have a goal image that also shows a same-category instance
     distractor_every: int = 5
     validate_weight: float = 2.0
+    start_clearance_m: float = 0.1
 
 
 def _scene_episodes(split: str, set_seed: int, k: int, out_dir: Path, cfg: EpisodeGenConfig) -> list[Episode]:
@@ -79,7 +81,12 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
         for c in cats:
             if by_cat[c]:
                 order.append(by_cat[c].pop())
-    free_ij = np.argwhere(comp)
+    # starts keep START_CLEARANCE_M beyond the robot's radius from everything (not wedged
+    # against a wall or a bed edge), as a robot would be parked
+    r = int(round(cfg.start_clearance_m / grid.resolution_m))
+    disc = np.hypot(*np.mgrid[-r:r + 1, -r:r + 1]) <= r + 1e-9
+    start_ok = ndimage.binary_erosion(comp, structure=disc) if r > 0 else comp
+    free_ij = np.argwhere(start_ok)
     free_xy = grid.ij_to_xy(free_ij)
     episodes: list[Episode] = []
     for inst_id in order:
