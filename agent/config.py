@@ -33,10 +33,14 @@ class PolicyConfig:
     rank_candidates_by: Literal["points", "score"] = "points"  # the paper keeps the largest cluster
     verify: bool = True  # confirm a candidate by a re-match at close range before stopping
     verify_range_m: float = 2.0  # a detection from this close confirms the candidate
+    # ... when its points lie this close to the candidate's cells (large objects split into clusters)
+    verify_match_radius_m: float = 1.0
+    # when the stop region is unreachable, the nearest cells up to this much farther will do
+    stop_radius_slack_m: float = 0.25
     verify_scan_steps: int = 4  # turns (left, right, right, left) looking for a confirmation
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
-    approach_patience_steps: int = 60  # steps without getting nearer to a candidate before it is dropped
+    approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 1  # full turns when no frontier is reachable, before stopping as "exhausted"
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)

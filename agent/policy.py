@@ -98,6 +98,7 @@ class ModIINAgent:
         self._unreachable_goal = 0
         self._approach_best_m, self._approach_stall = math.inf, 0
         self._approach_xy: tuple[float, float] | None = None  # the candidate being approached
+        self._region_unreachable = False  # the stop region could not be reached: the slack applies
         self._rescans_left = self.config.policy.max_rescans
         self._blocked: set[tuple[int, int, int]] = set()  # (cell i, cell j, heading bin) of failed forward moves
         self._blocked_repeats = 0
@@ -224,7 +225,7 @@ class ModIINAgent:
         cells = self.grid.ij_to_xy(cand.cells_ij)
         conf = np.asarray(self._confirmed_xy)
         d = np.hypot(cells[:, None, 0] - conf[None, :, 0], cells[:, None, 1] - conf[None, :, 1])
-        return bool(d.min() <= self.config.localisation.cluster_radius_m)
+        return bool(d.min() <= self.config.policy.verify_match_radius_m)
 
     def _reject(self, cand: Candidate, why: str) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
@@ -263,8 +264,8 @@ class ModIINAgent:
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
-        near_enough = self._move_key(pose) in self._blocked and region_within(
-            grid.layers.goal, pc.stop_radius_m + FORWARD_STEP_M, grid.resolution_m)[agent_ij]
+        near_enough = (self._region_unreachable or self._move_key(pose) in self._blocked) and region_within(
+            grid.layers.goal, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
             goal_xy = grid.ij_to_xy(cand.cells_ij)
             k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
@@ -288,7 +289,16 @@ class ModIINAgent:
         self._scan_left = -1
         field = self.planner.distance_field(grid, pose, extra_targets=region)
         try:
-            plan = self.planner.plan(grid, field, pose, region)
+            try:
+                plan = self.planner.plan(grid, field, pose, region)
+            except PlanError:
+                # The stop region can be out of reach (a TV on a deep stand, the middle of a
+                # bed): head for the reachable cells nearest to the goal instead.
+                wider = region_within(grid.layers.goal, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
+                plan = self.planner.plan(grid, field, pose, wider)
+                self._region_unreachable = True
+            else:
+                self._region_unreachable = False
         except PlanError as exc:
             self._unreachable_goal += 1
             if self._unreachable_goal >= pc.unreachable_goal_steps:
