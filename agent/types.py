@@ -207,6 +207,24 @@ class Backend(Protocol):
 # --- what the agent says about each step (read by the console and evaluation) ---
 
 
+def grid_xy_to_ij(xy_m: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float) -> np.ndarray:
+    """(N, 2) metres -> (N, 2) int64 (i, j) of the containing cells of a grid whose cell
+    (0, 0) has its corner at ``origin_xy_m``; rows follow y, columns follow x. May fall
+    outside the grid."""
+    xy_m = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    j = np.floor((xy_m[:, 0] - origin_xy_m[0]) / resolution_m).astype(np.int64)
+    i = np.floor((xy_m[:, 1] - origin_xy_m[1]) / resolution_m).astype(np.int64)
+    return np.stack([i, j], axis=1)
+
+
+def grid_ij_to_xy(ij: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float) -> np.ndarray:
+    """(N, 2) (i, j) -> (N, 2) float64 metres of the cell centres (inverse of ``grid_xy_to_ij``)."""
+    ij = np.asarray(ij, dtype=np.float64).reshape(-1, 2)
+    x = origin_xy_m[0] + (ij[:, 1] + 0.5) * resolution_m
+    y = origin_xy_m[1] + (ij[:, 0] + 0.5) * resolution_m
+    return np.stack([x, y], axis=1)
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class MapSnapshot:
     """A copy of the agent's top-down map. All layers are (H, W) bool in grid order:
@@ -225,16 +243,10 @@ class MapSnapshot:
     blacklist: np.ndarray | None = None
 
     def xy_to_ij(self, xy_m: np.ndarray) -> np.ndarray:
-        xy_m = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-        j = np.floor((xy_m[:, 0] - self.origin_xy_m[0]) / self.resolution_m).astype(np.int64)
-        i = np.floor((xy_m[:, 1] - self.origin_xy_m[1]) / self.resolution_m).astype(np.int64)
-        return np.stack([i, j], axis=1)
+        return grid_xy_to_ij(xy_m, self.origin_xy_m, self.resolution_m)
 
     def ij_to_xy(self, ij: np.ndarray) -> np.ndarray:
-        ij = np.asarray(ij, dtype=np.float64).reshape(-1, 2)
-        x = self.origin_xy_m[0] + (ij[:, 1] + 0.5) * self.resolution_m
-        y = self.origin_xy_m[1] + (ij[:, 0] + 0.5) * self.resolution_m
-        return np.stack([x, y], axis=1)
+        return grid_ij_to_xy(ij, self.origin_xy_m, self.resolution_m)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

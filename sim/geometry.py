@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.types import ROBOT_HEIGHT_M, ROBOT_RADIUS_M
+from agent.types import ROBOT_HEIGHT_M, ROBOT_RADIUS_M, grid_ij_to_xy, grid_xy_to_ij
 
 # Parts whose top is below this height are floor coverings (rugs): drivable.
 FLOOR_COVERING_TOP_M = 0.03
@@ -113,17 +113,11 @@ class NavGrid:
 
     def xy_to_ij(self, xy_m: np.ndarray) -> np.ndarray:
         """(N, 2) world metres -> (N, 2) int64 (i, j); may fall outside the grid."""
-        xy_m = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-        j = np.floor((xy_m[:, 0] - self.origin_xy_m[0]) / self.resolution_m).astype(np.int64)
-        i = np.floor((xy_m[:, 1] - self.origin_xy_m[1]) / self.resolution_m).astype(np.int64)
-        return np.stack([i, j], axis=1)
+        return grid_xy_to_ij(xy_m, self.origin_xy_m, self.resolution_m)
 
     def ij_to_xy(self, ij: np.ndarray) -> np.ndarray:
         """(N, 2) (i, j) -> (N, 2) float64 world metres of the cell centres."""
-        ij = np.asarray(ij, dtype=np.float64).reshape(-1, 2)
-        x = self.origin_xy_m[0] + (ij[:, 1] + 0.5) * self.resolution_m
-        y = self.origin_xy_m[1] + (ij[:, 0] + 0.5) * self.resolution_m
-        return np.stack([x, y], axis=1)
+        return grid_ij_to_xy(ij, self.origin_xy_m, self.resolution_m)
 
     def inside(self, ij: np.ndarray) -> np.ndarray:
         ij = np.asarray(ij).reshape(-1, 2)
