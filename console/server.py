@@ -47,6 +47,7 @@ def _lan_addresses() -> list[str]:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from console.agents import warm_up_async
     from console.api import create_app
     from console.providers import build_providers
 
@@ -61,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         prepare = getattr(provider, "prepare_async", None)
         if prepare is not None:
             prepare(console.hub)
+    warm_up_async("sim")  # load the matcher while the operator takes the photo
 
     hosts = [args.host] if args.host not in ("0.0.0.0", "::") else ["127.0.0.1", *_lan_addresses()]
     query = f"?token={console.token}" if console.token else ""

@@ -30,7 +30,7 @@ class XFeatLighterGlue:
     @torch.inference_mode()
     def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
         img, scale = resize_max_side(rgb, self.max_side_px)
-        x = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1)[None].float() / 255.0
+        x = torch.from_numpy(np.require(img, requirements=["C", "W"])).permute(2, 0, 1)[None].float() / 255.0  # read-only input is copied
         out = self._xfeat.detectAndCompute(x, top_k=max_keypoints)[0]
         kp = out["keypoints"]
         h, w = img.shape[:2]
