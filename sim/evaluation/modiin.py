@@ -172,9 +172,12 @@ class Attribution:
       view projected elsewhere);
     * the final candidate lies on the goal: ``local_navigation`` (found and localised, but
       the stop missed the success region or the budget ran out);
+    * no final candidate, but a candidate on the goal existed earlier: ``local_navigation``
+      (found and localised, then given up as unreachable or for lack of progress);
+    * no final candidate, detections with the goal in view, yet no candidate on it ever:
+      ``localisation`` (the goal was recognised but its points never landed on it);
     * no candidate and the goal was never in view (>= ``seen_px``): ``exploration``;
-    * no candidate although the goal was in view: ``reid_false_negative`` (never detected,
-      or detected and then rejected by verification).
+    * otherwise (the goal was in view and never detected there): ``reid_false_negative``.
     """
 
     def __init__(self, args: argparse.Namespace, episode: Any, oracle: Any) -> None:
@@ -193,6 +196,7 @@ class Attribution:
         self.det_unseen = 0  # detections with the goal out of view
         self.first_detection: int | None = None
         self.planner_errors = 0
+        self.candidate_on_goal_steps = 0  # steps whose current candidate lay on the goal
         self.modes: Counter[str] = Counter()
         self.last: AgentRecord | None = None
         self.timings: dict[str, list[float]] = {}
@@ -217,14 +221,19 @@ class Attribution:
                 self.det_unseen += 1
             else:
                 self.det_seen += 1
+        d = self._candidate_distance_m(record)
+        if d is not None and d <= 1.0:
+            self.candidate_on_goal_steps += 1
         for k, v in record.timings_ms.items():
             self.timings.setdefault(k, []).append(float(v))
 
-    def _candidate_distance_m(self) -> float | None:
-        """Median distance of the final candidate's points to the goal's footprint (None: no candidate)."""
-        if self.last is None or len(self.last.goal_points_xyz) == 0:
+    def _candidate_distance_m(self, record: AgentRecord | None = None) -> float | None:
+        """Median distance of a record's candidate points (default: the last record's) to the
+        goal's footprint (None: no candidate)."""
+        record = self.last if record is None else record
+        if record is None or len(record.goal_points_xyz) == 0:
             return None
-        pts = self.oracle.start_pose_world.transform_xy(self.last.goal_points_xyz[:, :2])
+        pts = self.oracle.start_pose_world.transform_xy(record.goal_points_xyz[:, :2])
         x0, y0, x1, y1 = self.goal_bounds_world
         dx = np.maximum(np.maximum(x0 - pts[:, 0], pts[:, 0] - x1), 0.0)
         dy = np.maximum(np.maximum(y0 - pts[:, 1], pts[:, 1] - y1), 0.0)
@@ -236,8 +245,10 @@ class Attribution:
         d = self._candidate_distance_m()
         if d is not None and d > 1.0:
             return "reid_false_positive" if self.det_unseen > 0 else "localisation"
-        if d is not None:
+        if d is not None or self.candidate_on_goal_steps > 0:
             return "local_navigation"
+        if self.det_seen > 0:
+            return "localisation"
         return "exploration" if self.seen_steps == 0 else "reid_false_negative"
 
     def finish(self, episode_record: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -252,6 +263,7 @@ class Attribution:
                 "detections_goal_in_view": self.det_seen,
                 "detections_goal_out_of_view": self.det_unseen,
                 "candidate_to_goal_m": None if d is None else round(d, 3),
+                "candidate_on_goal_steps": self.candidate_on_goal_steps,
                 "final_mode": self.last.mode if self.last else None,
                 "final_reason": self.last.reason if self.last else None,
                 "planner_errors": self.planner_errors,

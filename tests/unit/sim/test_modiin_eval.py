@@ -55,7 +55,7 @@ def attribution(steps):
     a.oracle = FakeOracle()
     a.seen_px, a.variant = 2300, "v"
     a.goal_bounds_world = (4.0, 4.0, 5.0, 5.0)  # world frame; start frame = world - (1, 0)
-    a.steps = a.seen_steps = a.det_seen = a.det_unseen = a.planner_errors = 0
+    a.steps = a.seen_steps = a.det_seen = a.det_unseen = a.planner_errors = a.candidate_on_goal_steps = 0
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
     a.modes, a.timings = Counter(), {}
@@ -78,6 +78,10 @@ def test_attribution_classes():
     assert attribution([(5000, True, OFF_GOAL)]).cause(False) == "localisation"
     assert attribution([(5000, True, ON_GOAL)]).cause(False) == "local_navigation"
     assert attribution([(5000, True, ON_GOAL)]).cause(True) is None
+    # found and localised on the goal, then given up (no candidate at the end): navigation
+    assert attribution([(5000, True, ON_GOAL), (0, False, [])]).cause(False) == "local_navigation"
+    # recognised with the goal in view but no candidate ever landed on it: localisation
+    assert attribution([(5000, True, []), (0, False, [])]).cause(False) == "localisation"
 
 
 def test_distribution_and_table():
