@@ -200,6 +200,8 @@ class Attribution:
         self.modes: Counter[str] = Counter()
         self.last: AgentRecord | None = None
         self.timings: dict[str, list[float]] = {}
+        self.trace_score: list[float | None] = []  # per step: re-ID score and goal pixels in view,
+        self.trace_goal_px: list[int] = []  # kept for threshold analysis on train episodes
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
@@ -210,6 +212,8 @@ class Attribution:
             self.first_seen = obs.step if self.first_seen is None else self.first_seen
         if record is None:
             return
+        self.trace_score.append(None if record.reid_score is None else round(float(record.reid_score), 2))
+        self.trace_goal_px.append(px)
         self.last = record
         self.modes[record.mode] += 1
         if record.planner_error:
@@ -269,6 +273,7 @@ class Attribution:
                 "planner_errors": self.planner_errors,
                 "modes": dict(self.modes),
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
+                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px},
             },
         }
 

@@ -47,6 +47,7 @@ class Rec:
         self.goal_detected = detected
         self.goal_points_xyz = np.asarray(pts, np.float32).reshape(-1, 3)
         self.mode, self.reason, self.planner_error, self.timings_ms = mode, "", None, {"total": 1.0}
+        self.reid_score = 100.0 if detected else 1.0
 
 
 def attribution(steps):
@@ -59,6 +60,7 @@ def attribution(steps):
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
     a.modes, a.timings = Counter(), {}
+    a.trace_score, a.trace_goal_px = [], []
     obs = type("O", (), {"step": 0})()
     for k, (px, det, pts) in enumerate(steps):
         a.oracle.px = px
@@ -82,6 +84,8 @@ def test_attribution_classes():
     assert attribution([(5000, True, ON_GOAL), (0, False, [])]).cause(False) == "local_navigation"
     # recognised with the goal in view but no candidate ever landed on it: localisation
     assert attribution([(5000, True, []), (0, False, [])]).cause(False) == "localisation"
+    trace = attribution([(5000, True, ON_GOAL), (0, False, [])]).finish({"success": False})["modiin"]["trace"]
+    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0]}
 
 
 def test_distribution_and_table():
