@@ -41,7 +41,7 @@ class PolicyConfig:
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
-    max_rescans: int = 1  # full turns when no frontier is reachable, before stopping as "exhausted"
+    max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
 

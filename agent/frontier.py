@@ -5,7 +5,10 @@ are grouped into 8-connected clusters; clusters smaller than ``min_cluster_cells
 noise. The target is the reachable frontier cell nearest to the agent by geodesic distance
 (read from the planner's distance field). It is kept until reached, until it stops being a
 frontier, or until it proves unreachable or yields no progress; reached and failed targets
-are blacklisted (a disk on the map's blacklist layer) so the agent does not return to them.
+are blacklisted (a disk on the map's ``frontier_blacklist`` layer) so the agent does not
+return to them. That layer is separate from the goal-candidate blacklist: when nothing is
+left to explore, the policy forgives it (a doorway "reached" from the side may still lead
+somewhere) while rejected goal candidates stay rejected.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ class FrontierConfig:
 
 
 def frontier_mask(grid: GridMap, min_cluster_cells: int = 5) -> np.ndarray:
-    """(H, W) bool frontier cells (explored free with an unexplored 4-neighbour), not blacklisted."""
+    """(H, W) bool frontier cells (explored free with an unexplored 4-neighbour), not blacklisted
+    (neither as a frontier nor as a rejected goal candidate)."""
     L = grid.layers
     free = L.explored & ~L.obstacle & ~L.collision
     unexplored = ~L.explored
@@ -41,7 +45,7 @@ def frontier_mask(grid: GridMap, min_cluster_cells: int = 5) -> np.ndarray:
     nb[:-1, :] |= unexplored[1:, :]
     nb[:, 1:] |= unexplored[:, :-1]
     nb[:, :-1] |= unexplored[:, 1:]
-    front = free & nb & ~L.blacklist
+    front = free & nb & ~L.blacklist & ~L.frontier_blacklist
     if min_cluster_cells > 1 and front.any():
         n, labels, stats, _ = cv2.connectedComponentsWithStats(front.astype(np.uint8), connectivity=8)
         small = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] < min_cluster_cells)
@@ -75,7 +79,7 @@ class FrontierExplorer:
     def blacklist_target(self, grid: GridMap, why: str) -> None:
         if self.target_xy_m is not None:
             log.debug("blacklisting frontier %s (%s)", self.target_xy_m, why)
-            grid.blacklist_disk(self.target_xy_m, self.config.blacklist_radius_m)
+            grid.blacklist_disk(self.target_xy_m, self.config.blacklist_radius_m, layer="frontier_blacklist")
         self.reset()
 
     def choose(self, grid: GridMap, field: DistanceField, frontier: np.ndarray) -> FrontierChoice | None:
@@ -97,7 +101,7 @@ class FrontierExplorer:
         if not ok.any():
             # every frontier is either unreachable or already at hand: blacklist the near ones
             for ij in cells[np.isfinite(d)]:
-                grid.layers.blacklist[ij[0], ij[1]] = True
+                grid.layers.frontier_blacklist[ij[0], ij[1]] = True
             return None
         k = int(np.argmin(np.where(ok, d, np.inf)))
         ij = (int(cells[k, 0]), int(cells[k, 1]))

@@ -62,7 +62,8 @@ class MapLayers:
     visited: np.ndarray
     collision: np.ndarray
     goal: np.ndarray
-    blacklist: np.ndarray
+    blacklist: np.ndarray  # rejected goal candidates: their points are dropped
+    frontier_blacklist: np.ndarray  # frontiers given up (reached, unreachable, stalled); may be forgiven
 
     @staticmethod
     def empty(shape: tuple[int, int]) -> "MapLayers":
@@ -291,7 +292,7 @@ class GridMap:
         ij = ij[self.in_bounds(ij)]
         self.layers.goal[ij[:, 0], ij[:, 1]] = True
 
-    def blacklist_disk(self, xy_m: tuple[float, float], radius_m: float) -> None:
+    def blacklist_disk(self, xy_m: tuple[float, float], radius_m: float, layer: str = "blacklist") -> None:
         self.ensure_contains((xy_m[0] - radius_m, xy_m[1] - radius_m), (xy_m[0] + radius_m, xy_m[1] + radius_m))
         ci, cj = self.xy_to_ij(np.array([xy_m]))[0]
         rc = int(math.ceil(radius_m / self.resolution_m))
@@ -300,7 +301,7 @@ class GridMap:
         j0, j1 = max(cj - rc, 0), min(cj + rc + 1, w)
         ii, jj = np.mgrid[i0:i1, j0:j1]
         disk = (ii - ci) ** 2 + (jj - cj) ** 2 <= rc * rc
-        self.layers.blacklist[i0:i1, j0:j1] |= disk
+        getattr(self.layers, layer)[i0:i1, j0:j1] |= disk
 
     # --- read-out ---------------------------------------------------------------------
 
@@ -316,5 +317,5 @@ class GridMap:
             collision=L.collision.copy(),
             goal=L.goal.copy(),
             frontier=np.zeros(self.shape, bool) if frontier is None else frontier.copy(),
-            blacklist=L.blacklist.copy(),
+            blacklist=L.blacklist | L.frontier_blacklist,
         )

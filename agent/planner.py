@@ -127,14 +127,19 @@ class FMMPlanner:
         j1 = min(max(aj, cols[-1] if len(cols) else aj) + m + 1, w)
         blocked_raw = (L.obstacle | L.collision)[i0:i1, j0:j1]
         r = self.inflation_radius_cells(grid.resolution_m)
-        inflated = cv2.dilate(blocked_raw.astype(np.uint8), disk_kernel(r)).astype(bool)
-        trav = ~inflated | (L.visited[i0:i1, j0:j1] & ~blocked_raw)
-        # The agent is physically where it is: clear the inflation (never raw obstacles)
-        # in a disk around it, so a robot that got close to a wall can still plan.
+        kernel = disk_kernel(r)
+        inflated = cv2.dilate(blocked_raw.astype(np.uint8), kernel).astype(bool)
+        # A collision mark is a failed move, not a seen surface: its whole inflation stays
+        # blocked, so no path squeezes past it at a slightly different heading.
+        collision_zone = cv2.dilate(L.collision[i0:i1, j0:j1].astype(np.uint8), kernel).astype(bool)
+        trav = ~inflated | (L.visited[i0:i1, j0:j1] & ~blocked_raw & ~collision_zone)
+        # The agent is physically where it is: clear the inflation of seen obstacles (never
+        # the obstacles, nor a collision mark's zone) in a disk around it, so a robot that
+        # got close to a wall can still plan.
         a = (ai - i0, aj - j0)
         ii, jj = np.ogrid[0 : i1 - i0, 0 : j1 - j0]
         near = (ii - a[0]) ** 2 + (jj - a[1]) ** 2 <= r * r
-        trav |= near & ~blocked_raw
+        trav |= near & ~blocked_raw & ~collision_zone
         trav[a] = True
         phi = np.ones(trav.shape, np.float64)
         phi[a] = 0.0
@@ -177,7 +182,7 @@ class FMMPlanner:
         within = np.flatnonzero(dist <= self.config.lookahead_m)
         k = int(within[-1]) if len(within) else len(path_xy) - 1
         if grid is not None and field is not None:
-            while k > 1 and not self._line_free(grid, field, here, path_xy[k]):
+            while k > 1 and not self.line_free(grid, field, here, path_xy[k]):
                 k -= 1
         p = path_xy[max(k, min(1, len(path_xy) - 1))]
         if np.hypot(*(p - here)) < 1e-6:
@@ -185,7 +190,7 @@ class FMMPlanner:
         return self.turn_towards(math.atan2(p[1] - pose.y_m, p[0] - pose.x_m), pose) or Action.MOVE_FORWARD
 
     @staticmethod
-    def _line_free(grid: GridMap, field: DistanceField, a_xy: np.ndarray, b_xy: np.ndarray) -> bool:
+    def line_free(grid: GridMap, field: DistanceField, a_xy: np.ndarray, b_xy: np.ndarray) -> bool:
         n = max(2, int(math.ceil(float(np.hypot(*(b_xy - a_xy))) / (0.5 * grid.resolution_m))) + 1)
         ij = grid.xy_to_ij(np.linspace(a_xy, b_xy, n)) - np.asarray(field.offset_ij)
         h, w = field.traversible.shape

@@ -32,7 +32,7 @@ from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
-from agent.planner import FMMPlanner, Plan, PlanError, region_within
+from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
@@ -190,11 +190,28 @@ class ModIINAgent:
         i, j = self.grid.xy_to_ij(np.array([[pose.x_m, pose.y_m]]))[0]
         return int(i) + self.grid.origin_ij[0], int(j) + self.grid.origin_ij[1], _heading_bin(pose.yaw_rad)
 
-    def _safe(self, plan: Plan, pose: Pose2D) -> Action:
+    def _blocked_here(self, pose: Pose2D) -> bool:
+        """A forward move from this cell failed, at any heading."""
+        i, j, _ = self._move_key(pose)
+        return any((i, j, h) in self._blocked for h in range(int(round(360 / TURN_ANGLE_DEG))))
+
+    def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
         """The plan's action, unless it is a forward move that already failed from this very
         cell and heading (the collision mark is only a guess of what blocked it): then turn
-        towards the side the path bends to."""
-        if plan.action != Action.MOVE_FORWARD or self._move_key(pose) not in self._blocked:
+        towards the side the path bends to. And when the plan turns back to such a heading (it
+        points between two 30 deg headings and the nearer one is blocked), step forward on the
+        current heading instead, to get round what blocked the move, rather than turn to and
+        fro on the spot; only where the map shows that step traversible."""
+        key = self._move_key(pose)
+        if plan.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+            sign = 1.0 if plan.action == Action.TURN_LEFT else -1.0
+            turned = Pose2D(pose.x_m, pose.y_m, pose.yaw_rad + sign * math.radians(TURN_ANGLE_DEG))
+            if self._move_key(turned) in self._blocked and key not in self._blocked:
+                here = np.array([pose.x_m, pose.y_m])
+                ahead = here + FORWARD_STEP_M * np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
+                if self.planner.line_free(self.grid, field, here, ahead):
+                    return Action.MOVE_FORWARD
+        if plan.action != Action.MOVE_FORWARD or key not in self._blocked:
             self._blocked_repeats = 0
             return plan.action
         self._blocked_repeats += 1
@@ -264,7 +281,7 @@ class ModIINAgent:
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
-        near_enough = (self._region_unreachable or self._move_key(pose) in self._blocked) and region_within(
+        near_enough = (self._region_unreachable or self._blocked_here(pose)) and region_within(
             grid.layers.goal, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
             goal_xy = grid.ij_to_xy(cand.cells_ij)
@@ -283,7 +300,8 @@ class ModIINAgent:
                 a = Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT
                 return a, "approach", "at the goal: turning to face it", None, "goal", None
             if confirmed:
-                return Action.STOP, "stopped", "within stop radius, facing the goal, re-identified at close range", None, "goal", None
+                why = "re-identified at close range" if pc.verify else "close-range verification off"
+                return Action.STOP, "stopped", f"within stop radius, facing the goal ({why})", None, "goal", None
             self._scan_left = 0
             return self._approach(obs, cand)
         self._scan_left = -1
@@ -318,7 +336,7 @@ class ModIINAgent:
             if self._approach_stall > pc.approach_patience_steps:
                 self._reject(cand, f"no progress for {self._approach_stall} steps")
                 return None
-        return self._safe(plan, pose), "approach", "navigating to the goal candidate", plan, "goal", None
+        return self._safe(plan, pose, field), "approach", "navigating to the goal candidate", plan, "goal", None
 
     def _explore(self, obs: Observation):
         grid, pose = self.grid, obs.pose
@@ -339,16 +357,19 @@ class ModIINAgent:
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
             self._rescan_steps = 0
-            action = self._safe(plan, pose)
+            action = self._safe(plan, pose, field)
             if action != plan.action and self._blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
             return action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
-        # unknown): drop them once and look around again before giving up.
+        # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
+        # doorway passed at an angle): forgive both and look around again before giving up.
         if self._rescans_left > 0:
             if self._rescan_steps == 0:
                 self.grid.layers.collision[:] = False
-                log.info("no reachable frontier: cleared collision marks, looking around again")
+                self.grid.layers.frontier_blacklist[:] = False
+                self.explorer.reset()
+                log.info("no reachable frontier: cleared collision marks and given-up frontiers, looking around again")
             self._rescan_steps += 1
             if self._rescan_steps >= self.config.policy.look_around_turns or self._rescan_steps >= 12:
                 self._rescans_left -= 1

@@ -52,7 +52,7 @@ def test_nearest_by_geodesic_distance_then_next_when_reached():
     pose = Pose2D(1.8, 0.0)
     choice = explorer.choose(grid, planner.distance_field(grid, pose), frontier_mask(grid))
     assert choice is not None and choice.target_xy_m[0] < -1.5
-    assert grid.layers.blacklist[grid.cell_of(Pose2D(2.0, 0.0))]
+    assert grid.layers.frontier_blacklist[grid.cell_of(Pose2D(2.0, 0.0))]
 
 
 def test_geodesic_not_euclidean():

@@ -150,8 +150,43 @@ def test_a_failed_forward_move_is_not_repeated():
                         oracle_ego_mask=world.goal_mask)
     obs = world.observe()
     agent.reset(obs.goal_image)
-    key = agent._move_key(obs.pose)
-    agent._blocked.add(key)
+    agent.act(obs)  # maps the first view
+    field = agent.planner.distance_field(agent.grid, obs.pose)
+    agent._blocked.add(agent._move_key(obs.pose))
     from agent.planner import Plan
-    plan = Plan(Action.MOVE_FORWARD, (0, 0), (1.0, 0.0), 1.0, np.array([[0.0, 0.0], [0.5, 0.2], [1.0, 0.4]], np.float32))
-    assert agent._safe(plan, obs.pose) == Action.TURN_LEFT  # the path bends left
+    path = np.array([[0.0, 0.0], [0.5, 0.2], [1.0, 0.4]], np.float32)  # run frame: the start is the origin
+    plan = Plan(Action.MOVE_FORWARD, (0, 0), (1.0, 0.0), 1.0, path)
+    assert agent._safe(plan, obs.pose, field) == Action.TURN_LEFT  # the path bends left
+    # turned left, the plan turns back to the blocked heading: step ahead on this one instead
+    turned = Pose2D(obs.pose.x_m, obs.pose.y_m, math.radians(30))
+    back = Plan(Action.TURN_RIGHT, (0, 0), (1.0, 0.0), 1.0, path)
+    assert agent._safe(back, turned, field) == Action.MOVE_FORWARD
+    agent._blocked.clear()
+    assert agent._safe(back, turned, field) == Action.TURN_RIGHT
+
+
+def test_given_up_frontiers_are_forgiven_before_exhaustion_but_rejected_candidates_are_not():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    # re-ID fires within 3 m only: the goal must be explored to, through the door
+    agent = ModIINAgent(oracle_config(), oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() < 3.0,
+                        oracle_ego_mask=world.goal_mask)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    world.apply(agent.act(obs))
+    # every frontier given up (as if each had been reached or had stalled), and one rejected
+    # goal candidate in room A's corner
+    agent.grid.layers.frontier_blacklist[:] = True
+    rejected = agent.grid.cell_of(Pose2D(-2.5, -1.5))
+    agent.grid.layers.blacklist[rejected] = True
+    modes = []
+    for _ in range(400):
+        obs = world.observe()
+        action = agent.act(obs)
+        modes.append(agent.last_record.mode)
+        world.apply(action)
+        if action == Action.STOP:
+            break
+    assert "rescan" in modes and modes[-1] == "stopped", modes[-1]
+    assert world.distance_to_goal() < 1.0
+    assert agent.grid.layers.blacklist[agent.grid.cell_of(Pose2D(-2.5, -1.5))]
