@@ -179,5 +179,5 @@ def run(args: argparse.Namespace) -> int:
             lines.append(f"| {name} | {kind} | {r['tau']:.4g} | {r['max_f']:.3f} | {r['precision_at_tau']:.3f} | "
                          f"{r['recall_at_tau']:.3f} |")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    log.info("calibration (also in %s):\n%s", out / "summary.md", "\n".join(lines))
     return 0

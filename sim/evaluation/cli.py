@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import Callable
 
 log = logging.getLogger(__name__)
 
@@ -55,3 +56,9 @@ def run(args: argparse.Namespace) -> int:
     log.info("wrote %s and %s", out / RECORDS, out / SUMMARY)
     return 0
 
+
+def tables_main(render: Callable[[list[str]], str], out_dirs: list[str]) -> int:
+    """Print the comparison tables ``render`` makes of several ``imgnav eval`` outputs
+    (``python -m sim.evaluation.modiin OUT1 OUT2 ...``)."""
+    print(render(out_dirs))
+    return 0

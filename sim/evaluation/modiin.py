@@ -319,22 +319,20 @@ register(AgentSpec("modiin", "the Mod-IIN agent (Krantz et al. 2023) and its abl
                    make_observer=Attribution, summarize=summarize, worker_init=worker_init))
 
 
-def main(argv: list[str]) -> int:
-    """Print the paper-layout table (and failure shares) of several evaluation outputs."""
+def comparison_tables(out_dirs: list[str]) -> str:
+    """The paper-layout table and the failure shares of several evaluation outputs, as Markdown."""
     rows, fails = [TABLE_HEADER], []
-    for d in argv:
+    for d in out_dirs:
         s = json.loads((Path(d) / "summary.json").read_text())
         label = s.get("variant", d)
         rows.append(table_row(label if isinstance(label, str) else d, s))
         fc = s.get("failure_causes", {}).get("shares", {})
         fails.append(f"| {label} | " + " | ".join(f"{fc.get(c, 0.0):.2f}" for c in FAILURE_CLASSES) + " |")
-    print("\n".join(rows))
-    print()
-    print("| variant | " + " | ".join(FAILURE_CLASSES) + " |")
-    print("| --- |" + " --- |" * len(FAILURE_CLASSES))
-    print("\n".join(fails))
-    return 0
+    header = ["| variant | " + " | ".join(FAILURE_CLASSES) + " |", "| --- |" + " --- |" * len(FAILURE_CLASSES)]
+    return "\n".join(rows) + "\n\n" + "\n".join(header + fails)
 
 
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+if __name__ == "__main__":  # python -m sim.evaluation.modiin OUT1 OUT2 ...
+    from sim.evaluation.cli import tables_main
+
+    sys.exit(tables_main(comparison_tables, sys.argv[1:]))
