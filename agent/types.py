@@ -254,7 +254,10 @@ class AgentRecord:
     """A read-only account of one agent step: what it did and why.
 
     mode: e.g. ``look_around``, ``explore``, ``approach``, ``verify``, ``stopped``.
-    reid_score: score of this frame against the goal (None if re-ID did not run).
+    reid_score: score of this frame against the goal (None if re-ID did not run; 0 when the
+        gate skipped the full matcher).
+    reid_full_matcher: whether the full (learned) matcher ran on this frame (None: no re-ID).
+    reid_gate_score: the cheap first-stage score that decided it (None: gate off or no re-ID).
     matches_goal_xy / matches_obs_xy: (N, 2) float32 pixel coordinates (x, y) of the
         matched keypoints in the goal image and the egocentric image.
     goal_points_xyz: (M, 3) float32 goal points in the start-relative frame, metres.
@@ -269,6 +272,8 @@ class AgentRecord:
     reason: str
     reid_score: float | None = None
     reid_tau: float | None = None
+    reid_full_matcher: bool | None = None
+    reid_gate_score: float | None = None
     goal_detected: bool = False
     matches_goal_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     matches_obs_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
