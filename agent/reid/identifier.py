@@ -89,6 +89,8 @@ class ReIDResult:
     obs_xy: np.ndarray
     extract_ms: float
     match_ms: float
+    full_matcher: bool = True  # False: the gate scored the frame 0 without the full matcher
+    gate_score: float | None = None  # the gate's cheap score (None: gate off)
 
 
 class ReIdentifier:
