@@ -292,6 +292,29 @@ class GridMap:
         ij = ij[self.in_bounds(ij)]
         self.layers.goal[ij[:, 0], ij[:, 1]] = True
 
+    def clear_goal(self) -> None:
+        self.layers.goal[:] = False
+
+    def blacklist_cells(self, ij: np.ndarray, margin_m: float) -> None:
+        """Reject a goal candidate: its cells (in-bounds ones) and everything within ``margin_m``
+        of them join the ``blacklist`` layer (goal points there are ignored from now on)."""
+        ij = np.asarray(ij, np.int64).reshape(-1, 2)
+        ij = ij[self.in_bounds(ij)]
+        if len(ij) == 0:
+            return
+        cells = np.zeros(self.shape, bool)
+        cells[ij[:, 0], ij[:, 1]] = True
+        dt = cv2.distanceTransform((~cells).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        self.layers.blacklist |= dt * self.resolution_m <= margin_m
+
+    def forgive_collisions(self) -> None:
+        """Drop every collision mark: they are guesses (which side blocked a move is unknown)."""
+        self.layers.collision[:] = False
+
+    def forgive_frontiers(self) -> None:
+        """Drop every given-up frontier (rejected goal candidates stay rejected)."""
+        self.layers.frontier_blacklist[:] = False
+
     def blacklist_disk(self, xy_m: tuple[float, float], radius_m: float, layer: str = "blacklist") -> None:
         self.ensure_contains((xy_m[0] - radius_m, xy_m[1] - radius_m), (xy_m[0] + radius_m, xy_m[1] + radius_m))
         ci, cj = self.xy_to_ij(np.array([xy_m]))[0]

@@ -2,8 +2,9 @@
 goal localisation by projected matches, fast-marching navigation (DESIGN section 2).
 
 Per step: map the depth frame; re-identify (score the frame against the goal image); on a
-detection, lift the matched goal keypoints into 3D goal points; then either navigate to the
-goal candidate (largest cluster of goal points) or to the nearest frontier.
+detection, lift the matched goal keypoints into 3D goal points; then decide, as an explicit
+state machine (``agent.modes``: look around, explore, approach, verify, rescan, stop), one
+frozen ``Decision`` that goes into the step's ``AgentRecord``.
 
 Beyond the paper (DESIGN section 2, end), each configurable in ``PolicyConfig``:
 
@@ -24,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -32,6 +34,7 @@ from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
+from agent.modes import SCAN_TURNS, ApproachState, Decision, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
@@ -45,7 +48,7 @@ OracleEgoMask = Callable[[Observation], np.ndarray]
 
 _EMPTY2 = np.zeros((0, 2), np.float32)
 _EMPTY3 = np.zeros((0, 3), np.float32)
-_SCAN = (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.TURN_LEFT)
+_N_HEADINGS = int(round(360 / TURN_ANGLE_DEG))
 
 
 class ModIINAgent:
@@ -74,6 +77,7 @@ class ModIINAgent:
         self.segmenter = GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
         self.planner = FMMPlanner(config.planner)
         self._record: AgentRecord | None = None
+        self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
 
     # --- Agent protocol -------------------------------------------------------------
@@ -81,6 +85,14 @@ class ModIINAgent:
     @property
     def last_record(self) -> AgentRecord | None:
         return self._record
+
+    @property
+    def last_decision(self) -> Decision | None:
+        return self._decision
+
+    @property
+    def mode(self) -> Mode:
+        return self._state.mode
 
     def reset(self, goal_image: np.ndarray) -> None:
         self._goal_image = goal_image
@@ -92,18 +104,9 @@ class ModIINAgent:
         self.goal_mask = self.segmenter.mask(goal_image) if self.segmenter is not None else None
         self._prev_pose: Pose2D | None = None
         self._prev_action: Action | None = None
-        self._steps = 0
-        self._confirmed_xy: list[tuple[float, float]] = []  # close-range detections (verification)
-        self._scan_left: int = -1  # >=0 while scanning at a stop point
-        self._unreachable_goal = 0
-        self._approach_best_m, self._approach_stall = math.inf, 0
-        self._approach_xy: tuple[float, float] | None = None  # the candidate being approached
-        self._region_unreachable = False  # the stop region could not be reached: the slack applies
-        self._rescans_left = self.config.policy.max_rescans
-        self._blocked: set[tuple[int, int, int]] = set()  # (cell i, cell j, heading bin) of failed forward moves
-        self._blocked_repeats = 0
-        self._rescan_steps = 0
+        self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
         self._record = None
+        self._decision = None
 
     def act(self, obs: Observation) -> Action:
         if self._goal_image is None:
@@ -117,7 +120,8 @@ class ModIINAgent:
         if self._prev_pose is not None:
             if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
                 self.grid.mark_collision(self._prev_pose)
-                self._blocked.add(self._move_key(self._prev_pose))
+                m = self._state.motion
+                self._set(motion=replace(m, blocked=m.blocked | {self._move_key(self._prev_pose)}))
             self.grid.mark_visited((self._prev_pose.x_m, self._prev_pose.y_m), (obs.pose.x_m, obs.pose.y_m))
         else:
             self.grid.mark_visited((obs.pose.x_m, obs.pose.y_m), (obs.pose.x_m, obs.pose.y_m))
@@ -139,6 +143,7 @@ class ModIINAgent:
         if result is not None:
             timings["reid_extract"] = result.extract_ms
             timings["reid_match"] = result.match_ms
+            timings["reid_gate"] = result.gate_ms
 
         # 3. localisation
         t = time.perf_counter()
@@ -148,27 +153,30 @@ class ModIINAgent:
             if len(added):
                 c = added[:, :2].mean(axis=0)
                 if math.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m) <= pc.verify_range_m:
-                    self._confirmed_xy.append((float(c[0]), float(c[1])))
+                    self._set(confirmed_xy_m=self._state.confirmed_xy_m + ((float(c[0]), float(c[1])),))
         candidates = self.localiser.candidates(self.grid)
         timings["localisation"] = _ms(t)
 
         # 4. decision and planning
         t = time.perf_counter()
-        action, mode, reason, plan, target_kind, error, cand = self._decide(obs, candidates)
+        decision = self._decide(obs, candidates)
         timings["planning"] = _ms(t)
 
+        action = decision.action
         self._prev_pose, self._prev_action = obs.pose, action
-        self._steps += 1
+        self._set(mode=decision.mode, steps=self._state.steps + 1)
+        self._decision = decision
         snap = None
         if pc.snapshot_every > 0 and (obs.step % pc.snapshot_every == 0 or action == Action.STOP):
             snap = self.grid.snapshot(frontier_mask(self.grid, self.config.frontier.min_cluster_cells))
         timings["total"] = _ms(t_start)  # includes the record's map snapshot
+        plan, cand = decision.plan, decision.candidate
         self._record = AgentRecord(
             step=obs.step,
             action=action,
             pose=obs.pose,
-            mode=mode,
-            reason=reason,
+            mode=decision.mode.value,
+            reason=decision.reason,
             reid_score=score,
             reid_tau=self.tau,
             reid_full_matcher=result.full_matcher if result is not None else None,
@@ -178,15 +186,20 @@ class ModIINAgent:
             matches_obs_xy=result.obs_xy.astype(np.float32) if result is not None else _EMPTY2,
             goal_points_xyz=cand.points_xyz if cand is not None else _EMPTY3,
             target_xy_m=plan.target_xy_m if plan is not None else None,
-            target_kind=target_kind,
+            target_kind=decision.target_kind,
             plan_xy_m=plan.path_xy_m if plan is not None else _EMPTY2,
             map=snap,
             timings_ms=timings,
-            planner_error=error,
+            planner_error=decision.planner_error,
         )
         return action
 
-    # --- parts ---------------------------------------------------------------------
+    # --- state ---------------------------------------------------------------------
+
+    def _set(self, **changes) -> None:
+        self._state = replace(self._state, **changes)
+
+    # --- motion memory: failed forward moves ----------------------------------------------
 
     def _move_key(self, pose: Pose2D) -> tuple[int, int, int]:
         i, j = self.grid.xy_to_ij(np.array([[pose.x_m, pose.y_m]]))[0]
@@ -195,7 +208,7 @@ class ModIINAgent:
     def _blocked_here(self, pose: Pose2D) -> bool:
         """A forward move from this cell failed, at any heading."""
         i, j, _ = self._move_key(pose)
-        return any((i, j, h) in self._blocked for h in range(int(round(360 / TURN_ANGLE_DEG))))
+        return any((i, j, h) in self._state.motion.blocked for h in range(_N_HEADINGS))
 
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
         """The plan's action, unless it is a forward move that already failed from this very
@@ -204,23 +217,26 @@ class ModIINAgent:
         points between two 30 deg headings and the nearer one is blocked), step forward on the
         current heading instead, to get round what blocked the move, rather than turn to and
         fro on the spot; only where the map shows that step traversible."""
+        motion = self._state.motion
         key = self._move_key(pose)
         if plan.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
             sign = 1.0 if plan.action == Action.TURN_LEFT else -1.0
             turned = Pose2D(pose.x_m, pose.y_m, pose.yaw_rad + sign * math.radians(TURN_ANGLE_DEG))
-            if self._move_key(turned) in self._blocked and key not in self._blocked:
+            if self._move_key(turned) in motion.blocked and key not in motion.blocked:
                 here = np.array([pose.x_m, pose.y_m])
                 ahead = here + FORWARD_STEP_M * np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
                 if self.planner.line_free(self.grid, field, here, ahead):
                     return Action.MOVE_FORWARD
-        if plan.action != Action.MOVE_FORWARD or key not in self._blocked:
-            self._blocked_repeats = 0
+        if plan.action != Action.MOVE_FORWARD or key not in motion.blocked:
+            self._set(motion=replace(motion, blocked_repeats=0))
             return plan.action
-        self._blocked_repeats += 1
+        self._set(motion=replace(motion, blocked_repeats=motion.blocked_repeats + 1))
         path = plan.path_xy_m
         far = path[min(len(path) - 1, 8)]
         err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
         return Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT
+
+    # --- localisation and candidates ---------------------------------------------------
 
     def _localise(self, obs: Observation, result: ReIDResult | None, score: float) -> np.ndarray:
         if self.config.policy.localisation_source == "oracle":
@@ -239,108 +255,119 @@ class ModIINAgent:
     def _confirmed(self, cand: Candidate) -> bool:
         if not self.config.policy.verify:
             return True
-        if not self._confirmed_xy:
+        if not self._state.confirmed_xy_m:
             return False
         cells = self.grid.ij_to_xy(cand.cells_ij)
-        conf = np.asarray(self._confirmed_xy)
+        conf = np.asarray(self._state.confirmed_xy_m)
         d = np.hypot(cells[:, None, 0] - conf[None, :, 0], cells[:, None, 1] - conf[None, :, 1])
         return bool(d.min() <= self.config.policy.verify_match_radius_m)
 
     def _reject(self, cand: Candidate, why: str) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
-        L = self.grid.layers
-        rej = np.zeros(self.grid.shape, bool)
-        ij = cand.cells_ij[self.grid.in_bounds(cand.cells_ij)]
-        rej[ij[:, 0], ij[:, 1]] = True
-        L.blacklist |= region_within(rej, self.config.policy.reject_radius_m, self.grid.resolution_m)
-        self._approach_best_m, self._approach_stall = math.inf, 0
-        self._scan_left = -1
-        self._unreachable_goal = 0
+        self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m)
+        a = self._state.approach
+        self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0), verify=None)
 
-    def _decide(self, obs: Observation, candidates: list[Candidate]):
-        """-> (action, mode, reason, plan, target_kind, planner_error, candidate)"""
+    # --- the state machine -----------------------------------------------------------
+
+    def _decide(self, obs: Observation, candidates: list[Candidate]) -> Decision:
         pc = self.config.policy
         cand = self._pick(candidates)
-        if cand is None and self._steps < pc.look_around_turns:
-            return Action.TURN_LEFT, "look_around", f"initial look-around {self._steps + 1}/{pc.look_around_turns}", None, None, None, None
+        if cand is None and self._state.steps < pc.look_around_turns:
+            return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND,
+                            f"initial look-around {self._state.steps + 1}/{pc.look_around_turns}")
         if cand is not None:
             self.grid.set_goal_cells(cand.cells_ij)
-            out = self._approach(obs, cand)
-            if out is not None:
-                return (*out, cand)
+            decision = self._approach(obs, cand)
+            if decision is not None:
+                return decision
             cands = self.localiser.candidates(self.grid)  # the candidate was rejected
-            self.grid.set_goal_cells(np.zeros((0, 2), np.int64))
+            self.grid.clear_goal()
             if cands:
                 return self._decide(obs, cands)
         else:
-            self.grid.set_goal_cells(np.zeros((0, 2), np.int64))
-        return (*self._explore(obs), None)
+            self.grid.clear_goal()
+        return self._explore(obs)
 
-    def _approach(self, obs: Observation, cand: Candidate):
+    def _approach(self, obs: Observation, cand: Candidate) -> Decision | None:
+        """APPROACH (and VERIFY at the stop point); None when the candidate was rejected."""
         pc = self.config.policy
         grid, pose = self.grid, obs.pose
         region = region_within(grid.layers.goal, pc.stop_radius_m, grid.resolution_m)
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
-        near_enough = (self._region_unreachable or self._blocked_here(pose)) and region_within(
+        near_enough = (self._state.approach.region_unreachable or self._blocked_here(pose)) and region_within(
             grid.layers.goal, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
-            goal_xy = grid.ij_to_xy(cand.cells_ij)
-            k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
-            bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
-            confirmed = self._confirmed(cand)
-            if self._scan_left >= 0 and not confirmed:
-                if self._scan_left >= len(_SCAN) or self._scan_left >= pc.verify_scan_steps:
-                    self._reject(cand, "no close-range re-identification")
-                    return None
-                a = _SCAN[self._scan_left]
-                self._scan_left += 1
-                return a, "verify", "scanning for a close-range match", None, "goal", None
-            err = wrap_angle(bearing - pose.yaw_rad)
-            if abs(err) > math.radians(pc.facing_tolerance_deg):
-                a = Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT
-                return a, "approach", "at the goal: turning to face it", None, "goal", None
-            if confirmed:
-                why = "re-identified at close range" if pc.verify else "close-range verification off"
-                return Action.STOP, "stopped", f"within stop radius, facing the goal ({why})", None, "goal", None
-            self._scan_left = 0
-            return self._approach(obs, cand)
-        self._scan_left = -1
+            return self._at_candidate(obs, cand)
+        self._set(verify=None)
         field = self.planner.distance_field(grid, pose, extra_targets=region)
+        a = self._state.approach
         try:
             try:
                 plan = self.planner.plan(grid, field, pose, region)
+                a = replace(a, region_unreachable=False)
             except PlanError:
                 # The stop region can be out of reach (a TV on a deep stand, the middle of a
                 # bed): head for the reachable cells nearest to the goal instead.
                 wider = region_within(grid.layers.goal, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
                 plan = self.planner.plan(grid, field, pose, wider)
-                self._region_unreachable = True
-            else:
-                self._region_unreachable = False
+                a = replace(a, region_unreachable=True)
         except PlanError as exc:
-            self._unreachable_goal += 1
-            if self._unreachable_goal >= pc.unreachable_goal_steps:
-                self._reject(cand, f"unreachable for {self._unreachable_goal} steps")
+            a = replace(a, unreachable_steps=a.unreachable_steps + 1)
+            self._set(approach=a)
+            if a.unreachable_steps >= pc.unreachable_goal_steps:
+                self._reject(cand, f"unreachable for {a.unreachable_steps} steps")
                 return None
             # keep looking around: the map may open a way (a new view, a cleared collision)
-            return Action.TURN_LEFT, "approach", "goal not reachable yet", None, "goal", f"{exc.reason}: {exc}"
-        self._unreachable_goal = 0
+            return Decision(Action.TURN_LEFT, Mode.APPROACH, "goal not reachable yet", target_kind="goal",
+                            candidate=cand, planner_error=f"{exc.reason}: {exc}")
+        a = replace(a, unreachable_steps=0)
         # No progress towards the candidate for too long (blocked by what the map does not
         # show, or oscillating): give it up rather than spend the budget on it.
-        if self._approach_xy is None or math.dist(self._approach_xy, cand.centroid_xy_m) > 0.5:
-            self._approach_xy, self._approach_best_m, self._approach_stall = cand.centroid_xy_m, math.inf, 0
-        if plan.distance_m < self._approach_best_m - 0.05:
-            self._approach_best_m, self._approach_stall = plan.distance_m, 0
+        if a.target_xy_m is None or math.dist(a.target_xy_m, cand.centroid_xy_m) > 0.5:
+            a = replace(a, target_xy_m=cand.centroid_xy_m, best_distance_m=math.inf, stall_steps=0)
+        if plan.distance_m < a.best_distance_m - 0.05:
+            a = replace(a, best_distance_m=plan.distance_m, stall_steps=0)
         else:
-            self._approach_stall += 1
-            if self._approach_stall > pc.approach_patience_steps:
-                self._reject(cand, f"no progress for {self._approach_stall} steps")
-                return None
-        return self._safe(plan, pose, field), "approach", "navigating to the goal candidate", plan, "goal", None
+            a = replace(a, stall_steps=a.stall_steps + 1)
+        self._set(approach=a)
+        if a.stall_steps > pc.approach_patience_steps:
+            self._reject(cand, f"no progress for {a.stall_steps} steps")
+            return None
+        return Decision(self._safe(plan, pose, field), Mode.APPROACH, "navigating to the goal candidate", plan=plan,
+                        target_kind="goal", candidate=cand)
 
-    def _explore(self, obs: Observation):
+    def _at_candidate(self, obs: Observation, cand: Candidate) -> Decision | None:
+        """In the stop region: VERIFY (scan for a confirming re-match), face the goal, STOP."""
+        pc = self.config.policy
+        pose = obs.pose
+        goal_xy = self.grid.ij_to_xy(cand.cells_ij)
+        k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
+        bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
+        confirmed = self._confirmed(cand)
+        verify = self._state.verify
+        if verify is not None and not confirmed:
+            if verify.scan_index >= len(SCAN_TURNS) or verify.scan_index >= pc.verify_scan_steps:
+                self._reject(cand, "no close-range re-identification")
+                return None
+            self._set(verify=VerifyState(verify.scan_index + 1))
+            return Decision(SCAN_TURNS[verify.scan_index], Mode.VERIFY, "scanning for a close-range match",
+                            target_kind="goal", candidate=cand)
+        err = wrap_angle(bearing - pose.yaw_rad)
+        if abs(err) > math.radians(pc.facing_tolerance_deg):
+            return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.APPROACH,
+                            "at the goal: turning to face it", target_kind="goal", candidate=cand)
+        if confirmed:
+            why = "re-identified at close range" if pc.verify else "close-range verification off"
+            return Decision(Action.STOP, Mode.STOPPED, f"within stop radius, facing the goal ({why})",
+                            target_kind="goal", candidate=cand)
+        self._set(verify=VerifyState(0))
+        return self._at_candidate(obs, cand)
+
+    def _explore(self, obs: Observation) -> Decision:
+        """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end."""
         grid, pose = self.grid, obs.pose
         front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
         field = self.planner.distance_field(grid, pose)
@@ -358,31 +385,40 @@ class ModIINAgent:
                 self.explorer.blacklist_target(grid, exc.reason)
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
-            self._rescan_steps = 0
+            self._set(rescan=replace(self._state.rescan, steps=0))
             action = self._safe(plan, pose, field)
-            if action != plan.action and self._blocked_repeats > 3:
+            if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
-            return action, "explore", f"frontier ({choice.reason})", plan, "frontier", error
+            return Decision(action, Mode.EXPLORE, f"frontier ({choice.reason})", plan=plan, target_kind="frontier",
+                            planner_error=error)
+        return self._rescan(error)
+
+    def _rescan(self, error: str | None) -> Decision:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
-        if self._rescans_left > 0:
-            if self._rescan_steps == 0:
-                self.grid.layers.collision[:] = False
-                self.grid.layers.frontier_blacklist[:] = False
+        r = self._state.rescan
+        if r.rescans_left > 0:
+            if r.steps == 0:
+                self.grid.forgive_collisions()
+                self.grid.forgive_frontiers()
                 self.explorer.reset()
                 log.info("no reachable frontier: cleared collision marks and given-up frontiers, looking around again")
-            self._rescan_steps += 1
-            if self._rescan_steps >= self.config.policy.look_around_turns or self._rescan_steps >= 12:
-                self._rescans_left -= 1
-                self._rescan_steps = 0
-            return Action.TURN_LEFT, "rescan", "no reachable frontier: looking around again", None, None, error or "no_frontier"
+            steps = r.steps + 1
+            if steps >= self.config.policy.look_around_turns or steps >= 12:
+                r = RescanState(steps=0, rescans_left=r.rescans_left - 1)
+            else:
+                r = replace(r, steps=steps)
+            self._set(rescan=r)
+            return Decision(Action.TURN_LEFT, Mode.RESCAN, "no reachable frontier: looking around again",
+                            planner_error=error or "no_frontier")
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
-        return Action.STOP, "exhausted", "no reachable frontier and no goal candidate", None, None, error or "no_frontier"
+        return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
+                        planner_error=error or "no_frontier")
 
 
 def _heading_bin(yaw_rad: float) -> int:
-    return int(round(yaw_rad / math.radians(TURN_ANGLE_DEG))) % int(round(360 / TURN_ANGLE_DEG))
+    return int(round(yaw_rad / math.radians(TURN_ANGLE_DEG))) % _N_HEADINGS
 
 
 def _ms(t0: float) -> float:

@@ -1,0 +1,105 @@
+"""The policy's state machine: its modes, the state each mode keeps, and the decision of a step.
+
+The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
+
+    LOOK_AROUND --(no candidate, start turns done)--> EXPLORE <--(candidate rejected)--+
+        |                                               |                              |
+        +-----------(a goal candidate)-------------> APPROACH --(in the stop region)--> VERIFY
+                                                        |                              |
+                                                     STOPPED <------(confirmed)--------+
+    EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
+
+Each mode's memory is a small frozen dataclass; the agent replaces it (``dataclasses.replace``)
+rather than mutating counters, and every step ends in one frozen ``Decision`` that goes into
+the ``AgentRecord`` (mode, reason, plan, target, candidate, planner error).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+from agent.localisation import Candidate
+from agent.planner import Plan
+from agent.types import Action
+
+
+class Mode(str, enum.Enum):
+    LOOK_AROUND = "look_around"  # the initial full turn
+    EXPLORE = "explore"  # heading for a frontier
+    APPROACH = "approach"  # heading for a goal candidate (or turning to face it)
+    VERIFY = "verify"  # at the candidate, scanning for a confirming re-match
+    RESCAN = "rescan"  # no reachable frontier: forgive and look around again
+    STOPPED = "stopped"  # STOP at a (confirmed) candidate
+    EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
+
+    def __str__(self) -> str:  # records and logs show the plain name
+        return self.value
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Decision:
+    """What the policy decided this step and why (immutable; goes into the ``AgentRecord``).
+
+    target_kind: ``"goal"`` (a candidate), ``"frontier"`` or None; candidate: the goal
+    candidate the decision is about (None in EXPLORE/RESCAN/EXHAUSTED/LOOK_AROUND);
+    planner_error: ``"<reason>: <message>"`` of a failed plan this step, if any."""
+
+    action: Action
+    mode: Mode
+    reason: str
+    plan: Plan | None = None
+    target_kind: str | None = None
+    candidate: Candidate | None = None
+    planner_error: str | None = None
+    candidate_id: int | None = None  # id in the candidate memory (``agent.candidates``), when kept
+
+
+@dataclass(frozen=True, slots=True)
+class ApproachState:
+    """Progress towards the candidate being approached (kept across modes, keyed by its centroid)."""
+
+    target_xy_m: tuple[float, float] | None = None
+    best_distance_m: float = math.inf
+    stall_steps: int = 0  # steps without getting 5 cm nearer
+    unreachable_steps: int = 0  # consecutive steps without a plan to it
+    region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
+
+
+@dataclass(frozen=True, slots=True)
+class VerifyState:
+    """Scanning at the stop point for a confirmation: index into ``SCAN_TURNS``."""
+
+    scan_index: int = 0
+
+
+SCAN_TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.TURN_LEFT)
+
+
+@dataclass(frozen=True, slots=True)
+class RescanState:
+    steps: int = 0  # turns of the current rescan
+    rescans_left: int = 3
+
+
+@dataclass(frozen=True, slots=True)
+class MotionState:
+    """Failed forward moves, as (global cell i, cell j, heading bin), and how often in a row the
+    plan asked for one of them."""
+
+    blocked: frozenset[tuple[int, int, int]] = frozenset()
+    blocked_repeats: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PolicyState:
+    """The whole policy memory of a run (besides the map, the localiser and the frontier tracker)."""
+
+    mode: Mode = Mode.LOOK_AROUND
+    steps: int = 0  # acts so far
+    approach: ApproachState = field(default_factory=ApproachState)
+    verify: VerifyState | None = None  # None: not verifying
+    rescan: RescanState = field(default_factory=RescanState)
+    motion: MotionState = field(default_factory=MotionState)
+    confirmed_xy_m: tuple[tuple[float, float], ...] = ()  # centres of close-range detections

@@ -1,0 +1,116 @@
+"""The policy's state machine (agent.modes), one test per mode, on the Decision and the AgentRecord."""
+
+import math
+
+import numpy as np
+
+from agent.config import AgentConfig, PolicyConfig
+from agent.modes import SCAN_TURNS, Decision, Mode
+from agent.policy import ModIINAgent
+from agent.types import Action, Pose2D
+from agent_scenes import BoxWorld, room_walls
+from test_agent_policy import oracle_config, two_rooms
+
+
+def run_decisions(agent, world, max_steps=300):
+    """[(Decision, AgentRecord)] of one run, stopping at STOP."""
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    out = []
+    for _ in range(max_steps):
+        action = agent.act(obs)
+        d, rec = agent.last_decision, agent.last_record
+        assert isinstance(d, Decision) and d.action == action == rec.action
+        # the record carries the decision
+        assert rec.mode == d.mode.value and rec.reason == d.reason and rec.target_kind == d.target_kind
+        assert rec.planner_error == d.planner_error
+        assert (rec.target_xy_m is None) == (d.plan is None)
+        assert len(rec.goal_points_xyz) == (0 if d.candidate is None else d.candidate.n_points)
+        out.append((d, rec))
+        world.apply(action)
+        if action == Action.STOP:
+            break
+        obs = world.observe()
+    return out
+
+
+def oracle_agent(world, **policy):
+    return ModIINAgent(oracle_config(**policy), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+
+
+def test_look_around_then_explore_then_approach_then_stopped():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.0, 1.5, -0.5), goal)  # the goal is hidden behind the wall
+    steps = run_decisions(oracle_agent(world, look_around_turns=12), world)
+    modes = [d.mode for d, _ in steps]
+    # LOOK_AROUND: the first 12 steps turn left on the spot, counted in the reason
+    assert modes[:12] == [Mode.LOOK_AROUND] * 12
+    assert all(d.action == Action.TURN_LEFT and d.candidate is None and d.plan is None for d, _ in steps[:12])
+    assert steps[0][0].reason == "initial look-around 1/12"
+    # EXPLORE: frontier targets with a plan, no candidate (the goal is in the other room)
+    explore = [d for d, _ in steps if d.mode == Mode.EXPLORE]
+    assert explore and all(d.target_kind == "frontier" and d.plan is not None and d.candidate is None for d in explore)
+    # APPROACH: about a candidate, the goal as the target
+    approach = [d for d, _ in steps if d.mode == Mode.APPROACH]
+    assert approach and all(d.target_kind == "goal" and d.candidate is not None for d in approach)
+    assert modes.index(Mode.EXPLORE) < modes.index(Mode.APPROACH)
+    # STOPPED: a STOP about the candidate, last
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and last.action == Action.STOP and last.candidate is not None
+    assert rec.mode == "stopped" and world.distance_to_goal() < 1.0
+
+
+def test_verify_scans_then_rejects_an_unconfirmed_candidate():
+    """The candidate is seen only from afar (re-ID never fires within verify_range_m): at the
+    stop point the agent scans (VERIFY, the SCAN_TURNS), then rejects it and explores on."""
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
+    agent = ModIINAgent(oracle_config(verify=True, verify_range_m=1.5, look_around_turns=0),
+                        oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() > 2.0,
+                        oracle_ego_mask=world.goal_mask)
+    steps = run_decisions(agent, world, max_steps=200)
+    modes = [d.mode for d, _ in steps]
+    assert Mode.VERIFY in modes
+    k = modes.index(Mode.VERIFY)
+    scan = [d.action for d in [s[0] for s in steps[k:k + len(SCAN_TURNS)]]]
+    assert scan == list(SCAN_TURNS)
+    assert all(d.reason == "scanning for a close-range match" for d, _ in steps[k:k + len(SCAN_TURNS)])
+    # after the scan, the candidate is gone: never STOPPED at it
+    assert Mode.STOPPED not in modes[k:]
+    after = steps[k + len(SCAN_TURNS)][0]
+    assert after.candidate is None and after.mode in (Mode.EXPLORE, Mode.RESCAN, Mode.EXHAUSTED)
+
+
+def test_approach_turns_to_face_before_stopping():
+    boxes, goal, _ = two_rooms()
+    # in room B, within the stop radius of the goal but facing away from it
+    world = BoxWorld(boxes, Pose2D(3.7, 0.6, math.pi), goal)
+    steps = run_decisions(oracle_agent(world, look_around_turns=12), world, max_steps=40)
+    facing = [d for d, _ in steps if d.reason == "at the goal: turning to face it"]
+    assert steps[-1][0].mode == Mode.STOPPED
+    assert all(d.mode == Mode.APPROACH and d.action in (Action.TURN_LEFT, Action.TURN_RIGHT) for d in facing)
+
+
+def test_rescan_then_exhausted():
+    world = BoxWorld(room_walls(-1.0, -1.0, 1.0, 1.0) + [(5, 5, 5.5, 5.5, 0.5)], Pose2D(), goal_box=4)
+    steps = run_decisions(oracle_agent(world, look_around_turns=4, max_rescans=2), world, max_steps=100)
+    modes = [d.mode for d, _ in steps]
+    assert modes.count(Mode.RESCAN) == 2 * 4  # two rescans of look_around_turns turns each
+    assert all(d.action == Action.TURN_LEFT and d.planner_error for d, _ in steps if d.mode == Mode.RESCAN)
+    last, rec = steps[-1]
+    assert last.mode == Mode.EXHAUSTED and last.action == Action.STOP and last.planner_error
+    assert rec.mode == "exhausted"
+
+
+def test_mode_names_are_the_record_strings():
+    assert [m.value for m in Mode] == ["look_around", "explore", "approach", "verify", "rescan", "stopped", "exhausted"]
+    assert str(Mode.VERIFY) == "verify"
+
+
+def test_decision_is_frozen():
+    d = Decision(Action.STOP, Mode.STOPPED, "x")
+    try:
+        d.reason = "y"  # type: ignore[misc]
+    except AttributeError:
+        return
+    raise AssertionError("Decision must be frozen")
