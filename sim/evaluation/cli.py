@@ -1,6 +1,7 @@
 """``imgnav eval``: run an agent on an episode set and write metrics.
 
     imgnav eval --episodes data/episodes/val --agent oracle --limit 60 --workers 2 --out runs/oracle-val
+    imgnav eval --episodes data/episodes/val --agent oracle --ray auto --out runs/oracle-val   # on a Ray cluster
 
 Writes OUT/episodes.jsonl (one record per episode) and OUT/summary.json (sr, spl,
 ne, max_st, episodes, per_category, ...). Re-running skips finished episodes.
@@ -30,9 +31,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (episodes grouped by scene)")
     parser.add_argument("--overwrite", action="store_true", help="discard earlier results in --out instead of resuming")
     parser.add_argument("--fail-fast", action="store_true", help="stop at the first episode error instead of recording it")
+    add_ray_arguments(parser)
     for spec in specs:
         if spec.add_arguments:
             spec.add_arguments(parser.add_argument_group(f"{spec.name} agent"))
+
+
+def add_ray_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--ray`` and its options (``imgnav eval`` and ``imgnav calibrate``)."""
+    g = parser.add_argument_group("Ray (evaluation across machines; README 'Evaluating on a cluster')")
+    g.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help="run the work as Ray tasks: 'local' (Ray on this machine with --workers CPUs), 'auto' "
+                        "(the cluster this machine is a node of), or the head's HOST:PORT (or ray://HOST:10001)")
+    g.add_argument("--ray-retries", type=int, default=2,
+                   help="re-submissions of a task whose worker or node died (then its episodes are recorded as errors)")
+    g.add_argument("--ray-max-in-flight", type=int, default=None,
+                   help="tasks submitted at once (default: twice the cluster's CPUs)")
+
+
+def ray_options(args: argparse.Namespace, num_cpus: int):
+    """The ``RayOptions`` of the parsed flags, or None without ``--ray``."""
+    if not getattr(args, "ray", None):
+        return None
+    from sim.evaluation.ray_backend import RayOptions
+
+    return RayOptions(address=args.ray, num_cpus=num_cpus, max_retries=max(0, args.ray_retries),
+                      max_in_flight=args.ray_max_in_flight)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,10 +71,13 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         summary = run_evaluation(args.episodes, args.agent, args, out, limit=args.limit, workers=args.workers,
-                                 fail_fast=args.fail_fast)
+                                 fail_fast=args.fail_fast, ray=ray_options(args, args.workers))
     except (FileNotFoundError, ValueError) as exc:
         log.error("%s", exc)
         return 2
+    except KeyboardInterrupt:
+        log.warning("interrupted: the finished episodes are in %s; run the same command again to resume", out / RECORDS)
+        return 130
     brief = {k: summary[k] for k in ("episodes", "sr", "spl", "ne", "max_st", "errors")}
     log.info("%s on %s: %s", args.agent, args.episodes, json.dumps(brief))
     log.info("wrote %s and %s", out / RECORDS, out / SUMMARY)

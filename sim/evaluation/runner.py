@@ -51,7 +51,9 @@ import multiprocessing as mp
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Iterator
+
+import numpy as np
 
 from agent.types import Action
 from sim.backend import SimBackend
@@ -59,6 +61,9 @@ from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
 from sim.evaluation.registry import AgentSpec, get_spec
 from sim.metrics import aggregate
 from sim.world import SimWorld
+
+if TYPE_CHECKING:
+    from sim.evaluation.ray_backend import RayOptions
 
 log = logging.getLogger(__name__)
 
@@ -76,11 +81,15 @@ def _json_safe(v: Any) -> Any:
     return v
 
 
-def run_episode(world: SimWorld, episode_set: EpisodeSet, episode: Episode, spec: AgentSpec, args: argparse.Namespace,
-                fail_fast: bool = False) -> dict[str, Any]:
-    """Run one episode in an already built world; returns its record."""
+def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Path, episode: Episode, spec: AgentSpec,
+                args: argparse.Namespace, fail_fast: bool = False) -> dict[str, Any]:
+    """Run one episode in an already built world; returns its record.
+
+    goal_image: the episode's goal image ((H, W, 3) uint8 RGB), its PNG path, or the episode set it is in."""
     t0 = time.perf_counter()
-    backend = SimBackend.for_episode(world, episode, episode_set.goal_image_path(episode))
+    if isinstance(goal_image, EpisodeSet):
+        goal_image = goal_image.goal_image_path(episode)
+    backend = SimBackend.for_episode(world, episode, goal_image)
     agent_s = sim_s = 0.0
     error = None
     observer = None
@@ -149,20 +158,51 @@ def _clean_args(args: argparse.Namespace) -> argparse.Namespace:
     return argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
 
 
-def _run_group(episode_dir: str, episode_ids: list[str], agent: str, args: argparse.Namespace, fail_fast: bool):
-    es = load_episode_set(episode_dir)
+def run_scene(episodes: list[Episode], goal_images: list[np.ndarray | str | Path], agent: str, args: argparse.Namespace,
+              fail_fast: bool = False) -> Iterator[dict[str, Any]]:
+    """Run episodes of one home (built once) in order, yielding each record as it finishes.
+
+    The work unit of every evaluation backend (local, worker processes, Ray tasks)."""
     spec = get_spec(agent)
-    episodes = [es.by_id(i) for i in episode_ids]
     t0 = time.perf_counter()
     world = SimWorld.from_seed(episodes[0].scene_seed)
     build_s = time.perf_counter() - t0
     try:
-        for e in episodes:
-            rec = run_episode(world, es, e, spec, args, fail_fast)
+        for e, goal in zip(episodes, goal_images, strict=True):
+            rec = run_episode(world, goal, e, spec, args, fail_fast)
             rec["timing"]["scene_build_s"] = r4(build_s)
             yield rec
     finally:
         world.close()
+
+
+def _run_group(episode_dir: str, episode_ids: list[str], agent: str, args: argparse.Namespace, fail_fast: bool):
+    es = load_episode_set(episode_dir)
+    episodes = [es.by_id(i) for i in episode_ids]
+    yield from run_scene(episodes, [es.goal_image_path(e) for e in episodes], agent, args, fail_fast)
+
+
+def error_record(episode: Episode, agent: str, error: str) -> dict[str, Any]:
+    """The record of an episode that never ran to its end because its worker kept dying
+    (Ray retries exhausted): scored as a failure where it started, with ``error`` set, as
+    ``run_episode`` records an agent or backend exception."""
+    from agent.types import MAX_STEPS
+    from sim.metrics import episode_metrics
+
+    p = episode.start_pose_world
+    m = episode_metrics(called_stop=False, stop_xy_m=(p.x_m, p.y_m), viewpoints_xy_m=episode.viewpoints_array(),
+                        steps=0, max_steps=MAX_STEPS, path_length_m=0.0, shortest_path_m=episode.geodesic_distance_m,
+                        stop_geodesic_m=episode.geodesic_distance_m)
+    return {
+        "episode_id": episode.episode_id, "scene_seed": episode.scene_seed, "category": episode.goal_category,
+        "agent": agent, "success": m.success, "spl": r4(m.spl), "ne": r4(m.ne_m), "steps": 0,
+        "path_length_m": 0.0, "shortest_path_m": r4(m.shortest_path_m), "max_steps_reached": False,
+        "called_stop": False, "stop_reason": "error", "stop_to_viewpoint_m": r4(m.stop_to_viewpoint_m),
+        "difficulty": episode.info.get("difficulty"),
+        "trajectory": {"poses_world": [[r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)]], "actions": []},
+        "timing": {"wall_s": 0.0, "agent_ms_per_step": 0.0, "sim_ms_per_step": 0.0},
+        "error": error,
+    }
 
 
 def _worker_main(episode_dir: str, agent: str, args: argparse.Namespace, fail_fast: bool, tasks, results) -> None:
@@ -202,8 +242,12 @@ def read_records(out_dir: Path) -> list[dict[str, Any]]:
 
 
 def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace, out_dir: str | Path,
-                   limit: int | None = None, workers: int = 1, progress: bool = True, fail_fast: bool = False) -> dict[str, Any]:
-    """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary."""
+                   limit: int | None = None, workers: int = 1, progress: bool = True, fail_fast: bool = False,
+                   ray: RayOptions | None = None) -> dict[str, Any]:
+    """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary.
+
+    ``ray``: run the scenes as Ray tasks (``sim.evaluation.ray_backend``) instead of local
+    worker processes; records and summary are the same."""
     from tqdm import tqdm
 
     es = load_episode_set(episode_dir)
@@ -232,7 +276,11 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
             bar.update(1)
             bar.set_postfix(sr=f"{sum(bool(done[i]['success']) for i in done) / len(done):.2f}")
 
-        if workers <= 1 or len(groups) <= 1:
+        if ray is not None:
+            from sim.evaluation.ray_backend import run_scenes_on_ray
+
+            run_scenes_on_ray(ray, es, list(groups.values()), agent, args, fail_fast, write, is_done=done.__contains__)
+        elif workers <= 1 or len(groups) <= 1:
             if spec.worker_init:
                 spec.worker_init(args)
             for ids in groups.values():

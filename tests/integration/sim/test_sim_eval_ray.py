@@ -1,0 +1,115 @@
+"""`imgnav eval` on a real two-node Ray cluster (two 1-CPU nodes on this machine).
+
+The oracle agent is deterministic, so every record must equal the local runner's apart
+from its timing. One cluster serves the module; each run connects and disconnects as
+`imgnav eval --ray HOST:PORT` would.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import pytest
+
+from sim.episode_gen import EpisodeGenConfig, generate_episode_set
+from sim.episodes import load_episode_set
+from sim.evaluation.ray_backend import RayOptions
+from sim.evaluation.runner import read_records, run_evaluation
+
+ray = pytest.importorskip("ray")
+from ray.cluster_utils import Cluster  # noqa: E402
+
+
+def _comparable(out: Path) -> dict[str, dict]:
+    """Records by id, without the wall-clock timing (the only field allowed to differ)."""
+    return {r["episode_id"]: {k: v for k, v in r.items() if k != "timing"} for r in read_records(out)}
+
+
+def _ids_in_file(out: Path) -> list[str]:
+    return [json.loads(x)["episode_id"] for x in (out / "episodes.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def two_homes(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three val episodes in two homes: two in the first, one in the second."""
+    out = tmp_path_factory.mktemp("ray_episodes") / "val"
+    generate_episode_set("val", 11, 3, out, EpisodeGenConfig(episodes_per_scene=2), progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def local_records(two_homes: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
+    out = tmp_path_factory.mktemp("local")
+    run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False)
+    return _comparable(out)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    c.add_node(num_cpus=1)
+    c.wait_for_nodes()
+    yield c
+    if ray.is_initialized():
+        ray.shutdown()
+    c.shutdown()
+
+
+def test_two_node_cluster_gives_the_local_records(two_homes, local_records, cluster, tmp_path) -> None:
+    es = load_episode_set(two_homes)
+    assert len({e.scene_seed for e in es.episodes}) == 2 and len(es) == 3
+    out = tmp_path / "ray"
+    summary = run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False,
+                             ray=RayOptions(address=cluster.address))
+    assert not ray.is_initialized()  # the driver disconnected
+    assert _comparable(out) == local_records
+    assert sorted(_ids_in_file(out)) == sorted(local_records)
+    assert summary["episodes"] == 3 and summary["errors"] == 0 and summary["sr"] == 1.0
+
+
+def test_killed_workers_are_retried_then_recorded_as_errors_each_episode_once(two_homes, local_records, cluster,
+                                                                             tmp_path, caplog) -> None:
+    es = load_episode_set(two_homes)
+    first_home = [e.episode_id for e in es.episodes if e.scene_seed == es.episodes[0].scene_seed]
+    lone = next(e for e in es.episodes if e.episode_id not in first_home)
+    assert len(first_home) == 2
+    out = tmp_path / "ray"
+    # The first home's worker process is SIGKILLed after its first episode, once: the retry
+    # runs only the second episode. The other home's worker dies on every attempt: after
+    # the one allowed retry its episode is recorded with the error.
+    options = RayOptions(address=cluster.address, max_retries=1, crash_before=((first_home[1], 1), (lone.episode_id, 99)))
+    with caplog.at_level(logging.WARNING, logger="sim.evaluation.ray_backend"):
+        summary = run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False, ray=options)
+    ids = _ids_in_file(out)
+    assert sorted(ids) == sorted(local_records) and len(ids) == len(set(ids)) == 3
+    assert any("retry 1/1 with 1 episode(s)" in r.getMessage() for r in caplog.records)
+    got = _comparable(out)
+    assert got[first_home[0]] == local_records[first_home[0]]
+    assert got[first_home[1]] == local_records[first_home[1]]
+    bad = got[lone.episode_id]
+    assert bad["stop_reason"] == "error" and not bad["success"] and bad["steps"] == 0
+    assert bad["error"].startswith("WorkerCrashedError") and "lost 2 times" in bad["error"]
+    assert bad["ne"] == pytest.approx(lone.geodesic_distance_m)
+    assert summary["errors"] == 1 and summary["episodes"] == 3 and summary["sr"] == pytest.approx(2 / 3)
+
+
+def test_an_interrupted_driver_resumes(two_homes, local_records, cluster, tmp_path) -> None:
+    out = tmp_path / "ray"
+
+    def interrupt(record: dict) -> None:
+        raise KeyboardInterrupt  # Ctrl-C right after the first record is written
+
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False,
+                       ray=RayOptions(address=cluster.address, on_record=interrupt))
+    assert not ray.is_initialized()
+    assert len(_ids_in_file(out)) == 1
+    summary = run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False,
+                             ray=RayOptions(address=cluster.address))
+    ids = _ids_in_file(out)
+    assert len(ids) == len(set(ids)) == 3
+    assert _comparable(out) == local_records
+    assert summary["episodes"] == 3 and summary["errors"] == 0
