@@ -15,12 +15,14 @@ The same loop that runs in simulation runs here::
   current base pose, sends it, waits for the echo (which comes after the motion) and
   checks that the base got there. STOP sends nothing: moves block on the robot, so it is
   already standing still, and the bridge has no stop action.
-* ``observe()`` returns an observation captured after the last acknowledged action.
+* ``observe()`` returns an observation provably captured after the last acknowledged
+  action: one that arrived after the first observation echoing its step (the bridge
+  stamps the step at send time, after grabbing the images), within a bounded wait.
 
 Every failure is a ``BackendError`` with a reason code: ``disconnected`` (no state for
 more than ``state_silence_s``), ``runstopped``, ``not_homed``, ``ack_timeout``,
 ``move_failed``, ``head_failed``, ``no_observation``, ``bad_observation``, ``protocol``,
-``closed``. Runstop, homing and silence are checked before sending and throughout every
+``closed``, ``cancelled`` (``cancel()`` from another thread: the run was stopped). Runstop, homing and silence are checked before sending and throughout every
 wait, so a runstop pressed mid-move ends the run at once.
 """
 
@@ -97,12 +99,14 @@ class StretchBackend:
         self._link_factory = link_factory
         self._link: BridgeLink | None = None
         self._closed = False
+        self._cancelled: str | None = None  # set from another thread: waits end with "cancelled"
         self._start_world: Pose2D | None = None
         self._next_step = 0
         self._required_step: int | None = None  # observations must echo at least this
         self._actions_applied = 0
         self.moves: list[MoveReport] = []
         self.camera_offset: Pose2D | None = None  # head camera in the base frame, measured at reset
+        self.last_observation_seq = 0  # the link's number of the observation last returned
 
     # --- Backend protocol ----------------------------------------------------------------
 
@@ -171,6 +175,14 @@ class StretchBackend:
         self.moves.append(report)
         log.debug("step %d %s: ack after %.2f s, end error %.3f m", step, action.name, ack_wait_s, end.distance_to(goal))
 
+    def cancel(self, why: str = "the run was stopped") -> None:
+        """Make the current and every later wait for the robot end at once with a
+        ``BackendError("cancelled")`` (thread-safe; called by whoever stops the run while
+        ``apply``/``observe``/``reset`` waits on another thread). Nothing is sent: the bridge
+        has no stop action, so a move already sent runs to its end; the runstop button is
+        the emergency stop."""
+        self._cancelled = why
+
     def close(self) -> None:
         if self._closed:
             return
@@ -201,8 +213,10 @@ class StretchBackend:
         return f"; last problem: {problem}" if problem else ""
 
     def _check_safe(self, now: float | None = None) -> RobotState:
-        """Raise unless the robot is connected, homed and not runstopped."""
+        """Raise unless the robot is connected, homed and not runstopped (and the run goes on)."""
         link = self._require_link()
+        if self._cancelled is not None:
+            raise BackendError("cancelled", f"nothing more is sent to the robot: {self._cancelled}")
         if link.failure:
             raise BackendError("disconnected", link.failure)
         state = link.state
@@ -240,6 +254,8 @@ class StretchBackend:
                 return
             if self._closed:
                 raise BackendError("closed", "the Stretch backend was closed while waiting for the robot")
+            if self._cancelled is not None:
+                raise BackendError("cancelled", f"stopped waiting for the robot: {self._cancelled}")
             if check_link:
                 self._check_safe(now)
             if now >= deadline:
@@ -363,21 +379,55 @@ class StretchBackend:
         self._wait_until(there, cfg.head_timeout_s, "head_failed", failure)
 
     def _fresh_observation(self) -> RawObservation:
-        """The latest observation that echoes the last acknowledged step (captured after it)."""
+        """The latest observation provably captured after the last acknowledged step.
+
+        The bridge stamps an observation with the last handled step only when it sends it,
+        after grabbing its images and reading its pose (DESIGN section 6): the observation
+        that echoes step N can hold images from before N's motion ended. Its publishing loop
+        is sequential, so an observation received after that one was grabbed after it was
+        sent, hence after N's acknowledgement (``StretchConfig.observations_after_echo``)."""
         link = self._require_link()
         required = self._required_step
+        n_after = self.config.observations_after_echo
+        chosen: list[RawObservation] = []
 
         def fresh() -> bool:
             obs = link.observation
-            return obs is not None and (required is None or (obs.step is not None and obs.step >= required))
+            if obs is None:
+                return False
+            if required is not None:
+                if obs.step is None or obs.step < required:
+                    return False
+                first = link.first_observation_echoing(required)
+                if first is None or obs.seq - first < n_after:
+                    return False
+            chosen[:] = [obs]
+            return True
 
-        self._wait_until(
-            fresh,
-            self.config.observation_timeout_s,
-            "no_observation",
-            lambda: f"no observation echoing step {required} within {self.config.observation_timeout_s:.0f} s",
-        )
-        return link.observation  # type: ignore[return-value]
+        def failure() -> str:
+            first = link.first_observation_echoing(required) if required is not None else None
+            latest = link.observation
+            if first is None:
+                seen = (
+                    "no observation at all"
+                    if latest is None
+                    else f"the latest observation echoes step {latest.step}"
+                )
+                why = f"no observation has echoed it ({seen})"
+            else:
+                n_since = (latest.seq - first) if latest is not None else 0
+                why = (
+                    f"{n_since} observation(s) arrived after the first one that echoed it, "
+                    f"{n_after} needed (the robot's observation stream stalled?)"
+                )
+            return (
+                f"no observation captured after the acknowledgement of step {required} within "
+                f"{self.config.observation_timeout_s:.1f} s: {why}"
+            )
+
+        self._wait_until(fresh, self.config.observation_timeout_s, "no_observation", failure)
+        self.last_observation_seq = chosen[0].seq
+        return chosen[0]
 
     def _report_camera_mount(self, raw: RawObservation) -> None:
         """Log where the head camera sits relative to the base. ``Observation`` carries only the

@@ -33,6 +33,14 @@ class StretchConfig:
     goal_tolerance_m / goal_tolerance_rad: a move has finished when the base is this close
         to its goal.
     observation_timeout_s: wait this long for an observation captured after the last move.
+    observations_after_echo: take an observation for step N only when it arrived at least
+        this many observations after the first one that echoed N. The bridge grabs the
+        images, reads the pose, compresses, and reads the step only when it sends, all in
+        one publishing loop: the observation that echoes N may hold images from before the
+        motion ended, but the next one was grabbed after that send, so after the
+        acknowledgement. 1 is that proof; 2 adds a publishing period of margin for a camera
+        whose frames lag the grab; 0 takes the echoing observation itself (the old,
+        unsafe rule, kept for the protocol benchmark).
     head_pan_rad / head_tilt_rad: head pose sent after the navigation posture; tilt is
         positive looking down (``Observation.camera_tilt_rad``; the bridge's sign is the
         opposite). 0 = level, the simulator's camera (DESIGN section 1).
@@ -55,6 +63,7 @@ class StretchConfig:
     goal_tolerance_m: float = 0.10
     goal_tolerance_rad: float = 0.20
     observation_timeout_s: float = 5.0
+    observations_after_echo: int = 1
     head_pan_rad: float = 0.0
     head_tilt_rad: float = 0.0
     head_tolerance_rad: float = 0.15
@@ -81,6 +90,8 @@ class StretchConfig:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive")
+        if self.observations_after_echo < 0:
+            raise ValueError("observations_after_echo must be 0 or more")
         if not self.host:
             raise ValueError("host must not be empty")
 

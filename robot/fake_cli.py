@@ -8,7 +8,8 @@ Rehearse a robot run on one machine::
     imgnav fake-stretch --world box                 # an empty analytic room (no PyBullet)
 
 then point the console (or any stretch_ai client) at 127.0.0.1. Faults for rehearsal:
-``--runstopped``, ``--not-homed``, ``--drop-acks``, ``--silent-after-s``, ``--slow``.
+``--runstopped``, ``--not-homed``, ``--drop-acks``, ``--silent-after-s``, ``--slow``. Observations
+follow the bridge's order by default (``--idealised`` turns that off).
 """
 
 from __future__ import annotations
@@ -44,6 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     faults.add_argument("--drop-acks", action="store_true", help="execute actions but never echo their steps")
     faults.add_argument("--silent-after-s", type=float, help="stop publishing this many seconds after start")
     faults.add_argument("--slow", action="store_true", help="move at a real Stretch's pace (0.2 m/s, 0.6 rad/s)")
+    faults.add_argument(
+        "--idealised",
+        action="store_true",
+        help="build each observation at one instant instead of in the bridge's order (images, pose, "
+        "compression, then the step at send time, so an observation echoing a step can predate its motion's end)",
+    )
 
 
 def build_world(args: argparse.Namespace):
@@ -62,7 +69,9 @@ def build_world(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    knobs = FakeKnobs(runstopped=args.runstopped, homed=not args.not_homed, drop_acks=args.drop_acks)
+    knobs = FakeKnobs(
+        runstopped=args.runstopped, homed=not args.not_homed, drop_acks=args.drop_acks, faithful=not args.idealised
+    )
     if args.slow:
         knobs.linear_speed_m_s, knobs.angular_speed_rad_s = 0.2, 0.6
     world = build_world(args)

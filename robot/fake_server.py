@@ -17,9 +17,18 @@ swapped meanings) and state dicts (~30 Hz), and handles actions the way the brid
 * a runstop freezes motion (the move resumes when released, like the real goto
   controller, and the echo waits for it).
 
+Observations are built in the bridge's order (``FakeKnobs.faithful``, on by default):
+the camera images are grabbed (rendered) first, then the base pose and camera pose are
+read, then the images are compressed, and the last handled ``step`` is read only when
+the message is stamped for sending, while the base keeps moving in between. As on the
+robot, an observation that echoes step N can therefore hold images from before step N's
+motion ended (and a pose from after it). The loop runs back to back at the
+observation rate, like the bridge's publisher (its compression sets its pace).
+``faithful=False`` reads every field at one instant instead (an idealised robot).
+
 Knobs for tests (``FakeKnobs``, changeable while running): runstop, not homed, dropped
 acknowledgements, silence (publish nothing), slow moves (speeds), whether state
-messages carry ``step``.
+messages carry ``step``, faithful observation order.
 """
 
 from __future__ import annotations
@@ -57,11 +66,15 @@ class FakeKnobs:
     homed: bool = True
     drop_acks: bool = False  # handle actions but never echo their steps
     silent: bool = False  # publish nothing on either stream
+    observations_paused: bool = False  # publish state but no observations (a stalled camera stream)
     linear_speed_m_s: float = 2.0  # fast by default so tests run quickly; lower = slow moves
     angular_speed_rad_s: float = 6.0
     head_speed_rad_s: float = 3.0
     posture_s: float = 0.1
     state_has_step: bool = True
+    # The bridge's observation order (images, then pose, then compression, then the step
+    # stamped at send time, motion continuing throughout); False: all fields at one instant.
+    faithful: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,6 +128,7 @@ class FakeStretch:
         self._threads: list[threading.Thread] = []
         self._ctx: zmq.Context | None = None
         self._render_key: tuple | None = None
+        self._render_raw_cache: tuple[np.ndarray, np.ndarray] | None = None
         self._render_cache: tuple[np.ndarray, np.ndarray] | None = None
         self._render_shape: tuple[int, int] = (0, 0)
 
@@ -235,42 +249,74 @@ class FakeStretch:
         try:
             next_t = time.monotonic()
             while not self._stop.wait(max(0.0, next_t - time.monotonic())):
-                next_t = max(next_t + self._obs_period_s, time.monotonic())
-                if self.knobs.silent:
+                t_grab = time.monotonic()
+                if self.knobs.silent or self.knobs.observations_paused:
+                    next_t = t_grab + self._obs_period_s
                     continue
-                snap = self._snapshot()
-                rgb_enc, depth_enc, shape = self._rendered(snap.pose, snap.tilt_rad)
-                height_m = self.world.camera_height_m
-                msg = {
-                    "rgb": rgb_enc,
-                    "depth": depth_enc,
-                    "camera_K": self.world.intrinsics.K.astype(np.float32),
-                    "camera_pose": encoding.make_camera_pose(
-                        snap.pose.x_m, snap.pose.y_m, snap.pose.yaw_rad, height_m, snap.tilt_rad
-                    ),
-                    "ee_pose": np.eye(4),
-                    "joint": np.zeros(11),
-                    "gps": np.array([snap.pose.x_m, snap.pose.y_m]),
-                    "compass": np.array([snap.pose.yaw_rad]),
-                    # the bridge's swapped meanings: width, height = rgb.shape[:2]
-                    "rgb_width": shape[0],
-                    "rgb_height": shape[1],
-                    "control_mode": snap.control_mode,
-                    "last_motion_failed": snap.last_motion_failed,
-                    "recv_address": f"tcp://{self.host}:{self.ports[1] if self.ports else 0}",
-                    "step": snap.echo_step,
-                    "at_goal": snap.at_goal,
-                }
-                sock.send_pyobj(msg, protocol=4)
+                if self.knobs.faithful:
+                    # The bridge's order: grab the images, read the poses, compress, and only
+                    # then read the step to stamp the message; the base moves meanwhile.
+                    grab = self._snapshot()
+                    key = self._render_raw(grab.pose, grab.tilt_rad)
+                    read = self._snapshot()
+                    rgb_enc, depth_enc, shape = self._encoded(key)
+                    # The robot's compression sets the publishing pace: the next grab follows
+                    # this send at once, so the period is spent between grab and send.
+                    if self._stop.wait(max(0.0, t_grab + self._obs_period_s - time.monotonic())):
+                        break
+                    if self.knobs.silent or self.knobs.observations_paused:
+                        continue  # the fault began while this one was being compressed
+                    stamp = self._snapshot()
+                    next_t = time.monotonic()
+                else:
+                    read = stamp = self._snapshot()
+                    rgb_enc, depth_enc, shape = self._encoded(self._render_raw(read.pose, read.tilt_rad))
+                    next_t = max(next_t + self._obs_period_s, t_grab)
+                sock.send_pyobj(self._observation_message(read, stamp, rgb_enc, depth_enc, shape), protocol=4)
         finally:
             sock.close(linger=0)
 
-    def _rendered(self, pose: Pose2D, tilt_rad: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    def _observation_message(
+        self, read: _Snapshot, stamp: _Snapshot, rgb_enc: np.ndarray, depth_enc: np.ndarray, shape: tuple[int, int]
+    ) -> dict[str, Any]:
+        """``read``: poses read after the images were grabbed; ``stamp``: what the bridge reads
+        when it builds the dict (step, motion flags, control mode)."""
+        return {
+            "rgb": rgb_enc,
+            "depth": depth_enc,
+            "camera_K": self.world.intrinsics.K.astype(np.float32),
+            "camera_pose": encoding.make_camera_pose(
+                read.pose.x_m, read.pose.y_m, read.pose.yaw_rad, self.world.camera_height_m, read.tilt_rad
+            ),
+            "ee_pose": np.eye(4),
+            "joint": np.zeros(11),
+            "gps": np.array([read.pose.x_m, read.pose.y_m]),
+            "compass": np.array([read.pose.yaw_rad]),
+            # the bridge's swapped meanings: width, height = rgb.shape[:2]
+            "rgb_width": shape[0],
+            "rgb_height": shape[1],
+            "control_mode": stamp.control_mode,
+            "last_motion_failed": stamp.last_motion_failed,
+            "recv_address": f"tcp://{self.host}:{self.ports[1] if self.ports else 0}",
+            "step": stamp.echo_step,
+            "at_goal": stamp.at_goal,
+        }
+
+    def _render_raw(self, pose: Pose2D, tilt_rad: float) -> tuple:
+        """Grab the camera images at ``pose`` (rendered once per distinct pose); returns the cache key."""
         key = (round(pose.x_m, 4), round(pose.y_m, 4), round(pose.yaw_rad, 4), round(tilt_rad, 3))
-        if key != self._render_key or self._render_cache is None:
-            rgb, depth_m = self.world.render(pose, tilt_rad)
-            self._render_cache = (encoding.encode_rgb(rgb), encoding.encode_depth(depth_m))
+        if key != self._render_key or self._render_raw_cache is None:
+            self._render_raw_cache = self.world.render(pose, tilt_rad)
+            self._render_cache = None
             self._render_key = key
+        return key
+
+    def _encoded(self, key: tuple) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+        """The grabbed images compressed like the robot's (JPEG RGB, JPEG2000 millimetres)."""
+        assert key == self._render_key and self._render_raw_cache is not None
+        if self._render_cache is None:
+            rgb, depth_m = self._render_raw_cache
+            self._render_cache = (encoding.encode_rgb(rgb), encoding.encode_depth(depth_m))
             self._render_shape = rgb.shape[:2]
         return self._render_cache[0], self._render_cache[1], self._render_shape
 

@@ -14,6 +14,8 @@ linger 0 and a bounded join.
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import logging
 import pickle
 import threading
@@ -71,6 +73,10 @@ class BridgeLink:
         self._state: RobotState | None = None
         self._obs: RawObservation | None = None
         self._max_step = -(2**62)  # no echo seen yet
+        self._obs_seq = 0
+        # (step, seq): the first observation (by seq) whose echo reached that step; appended
+        # whenever the observations' echoed step rises, so it is sorted by both.
+        self._obs_echo_marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=256)
         self._counts = {"state": 0, "obs": 0, "refused": 0, "malformed": 0}
         self._last_problem: str | None = None
         self._stop = threading.Event()
@@ -141,7 +147,12 @@ class BridgeLink:
             if isinstance(parsed, RobotState):
                 self._state = parsed
             else:
+                self._obs_seq += 1
+                parsed = dataclasses.replace(parsed, seq=self._obs_seq)
                 self._obs = parsed
+                marks = self._obs_echo_marks
+                if parsed.step is not None and (not marks or parsed.step > marks[-1][0]):
+                    marks.append((parsed.step, parsed.seq))
             if parsed.step is not None:
                 self._max_step = max(self._max_step, parsed.step)
             self._counts[kind] += 1
@@ -173,6 +184,16 @@ class BridgeLink:
         """Highest step the robot has echoed in any message, None before any echo."""
         with self._cond:
             return None if self._max_step < -(2**61) else self._max_step
+
+    def first_observation_echoing(self, step: int) -> int | None:
+        """``seq`` of the first observation received that echoed ``step`` or a later one;
+        None while none has. (When old marks have been dropped this may name a later
+        observation than the first: never an earlier one.)"""
+        with self._cond:
+            for echoed, seq in self._obs_echo_marks:
+                if echoed >= step:
+                    return seq
+            return None
 
     @property
     def counts(self) -> dict[str, int]:

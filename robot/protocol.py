@@ -113,8 +113,9 @@ class RobotState:
     """One state message (port 4403).
 
     base_world: base pose in the robot's map frame.
-    step: last handled action step, if this bridge version sends it in state messages
-        (the version we read sends it only in observations; DESIGN says both).
+    step: last handled action step. The bridge sends it in state messages as well as in
+        observations (stretch_ai's ``get_state_message``); None when a message lacks it
+        (older bridge versions sent it only in observations).
     is_homed / is_runstopped: None when the message does not say.
     received_s: local monotonic receive time.
     """
@@ -156,7 +157,11 @@ class RawObservation:
 
     rgb_encoded / depth_encoded: 1-D uint8 JPEG / JPEG2000 bytes.
     camera_K: (3, 3) float64 pixels. T_world_camera: (4, 4) float64 (map frame).
-    base_world: from ``gps`` + ``compass``, captured with the images.
+    base_world: from ``gps`` + ``compass``. The bridge reads it just after grabbing the
+        images, and ``step`` only when it sends the message, so an observation that echoes
+        step N may hold images from before step N's motion ended (DESIGN section 6).
+    seq: the link's count of observations received so far (1 for the first; 0 until the
+        link numbers it). A higher ``seq`` is a later message from the robot.
     """
 
     rgb_encoded: np.ndarray
@@ -168,6 +173,7 @@ class RawObservation:
     last_motion_failed: bool
     at_goal: bool | None
     received_s: float
+    seq: int = 0
 
 
 def parse_observation(msg: Mapping[str, Any], received_s: float) -> RawObservation:

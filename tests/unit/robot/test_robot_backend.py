@@ -111,7 +111,7 @@ def test_a_move_into_a_wall_stops_short_and_is_reported_blocked(make_fake, make_
 
 
 def test_the_echo_may_come_only_from_observations(make_fake, make_backend) -> None:
-    """The bridge version we read sends ``step`` in observations, not in state messages."""
+    """Older bridge versions sent ``step`` only in observations (today's send it in state too)."""
     fake = make_fake(knobs=FakeKnobs(state_has_step=False), start_step=5)
     backend = make_backend(fake)
     reason, applied = run_loop(backend, [FWD, LEFT, STOP])
