@@ -6,6 +6,11 @@
   is the length the robot actually moved (blocked moves add nothing).
 * NE: geodesic distance from the stop position to the nearest viewpoint.
 * Max-ST: share of episodes that used the whole step budget without stopping.
+
+Success varies far more between homes than between episodes of one home, so episodes are
+not independent samples: SR and SPL get a 95% interval from a percentile bootstrap over
+homes (resample the homes with replacement, keep all episodes of each; ``bootstrap_ci``),
+whenever the records say which home (``scene_seed``) they come from.
 """
 
 from __future__ import annotations
@@ -76,6 +81,44 @@ def episode_metrics(*, called_stop: bool, stop_xy_m: tuple[float, float], viewpo
     )
 
 
+BOOTSTRAP_RESAMPLES = 2000
+
+
+def bootstrap_ci(values: Iterable[float], groups: Iterable[Any], level: float = 0.95,
+                 resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0) -> tuple[float, float]:
+    """Percentile-bootstrap interval of the mean of ``values`` (one per episode) over resampled
+    ``groups`` (homes): each resample draws as many homes as there are, with replacement, and
+    averages all episodes of the drawn homes. Deterministic for a given ``seed``."""
+    v = np.asarray(list(values), np.float64)
+    g = list(groups)
+    if len(v) != len(g):
+        raise ValueError("values and groups differ in length")
+    if len(v) == 0:
+        return (math.nan, math.nan)
+    keys = {k: i for i, k in enumerate(dict.fromkeys(g))}
+    idx = np.fromiter((keys[k] for k in g), np.int64, len(g))
+    sums = np.bincount(idx, weights=v, minlength=len(keys))
+    counts = np.bincount(idx, minlength=len(keys)).astype(np.float64)
+    rng = np.random.default_rng(seed)
+    draw = rng.integers(0, len(keys), size=(resamples, len(keys)))
+    stats = sums[draw].sum(axis=1) / counts[draw].sum(axis=1)
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.quantile(stats, [alpha, 1.0 - alpha])
+    return (round(float(lo), 4), round(float(hi), 4))
+
+
+def _intervals(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
+    """SR and SPL 95% intervals from a bootstrap over homes (empty without ``scene_seed``)."""
+    if not rows or any("scene_seed" not in r for r in rows):
+        return {}
+    homes = [r["scene_seed"] for r in rows]
+    return {
+        "homes": len(set(homes)),
+        "sr_ci95": list(bootstrap_ci([float(bool(r["success"])) for r in rows], homes)),
+        "spl_ci95": list(bootstrap_ci([float(r["spl"]) for r in rows], homes)),
+    }
+
+
 def _block(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
     n = len(rows)
     if n == 0:
@@ -90,6 +133,7 @@ def _block(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
         "ne": (sum(finite) / len(finite)) if finite else math.inf,
         "ne_unreachable": n - len(finite),
         "max_st": sum(bool(r["max_steps_reached"]) for r in rows) / n,
+        **_intervals(rows),
     }
 
 
@@ -97,7 +141,9 @@ def aggregate(records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     """Overall and per-category figures from per-episode records.
 
     Each record needs ``success``, ``spl``, ``ne`` (metres), ``max_steps_reached`` and
-    ``category``. Returns ``{"sr", "spl", "ne", "max_st", "episodes", ..., "per_category": {...}}``."""
+    ``category``; with ``scene_seed`` in every record, each block also has ``homes``,
+    ``sr_ci95`` and ``spl_ci95`` ([low, high], bootstrap over homes). Returns
+    ``{"sr", "spl", "ne", "max_st", "episodes", ..., "per_category": {...}}``."""
     rows = list(records)
     out = _block(rows)
     by_cat: dict[str, list[Mapping[str, Any]]] = defaultdict(list)

@@ -49,3 +49,28 @@ def test_aggregate_overall_and_per_category() -> None:
     assert s["per_category"]["chair"] == {"episodes": 2, "sr": 0.5, "spl": 0.4, "ne": 1.5, "ne_unreachable": 0, "max_st": 0.5}
     assert s["per_category"]["tv"]["sr"] == 0.5
     assert aggregate([])["episodes"] == 0
+
+
+def test_bootstrap_over_homes() -> None:
+    from sim.metrics import bootstrap_ci
+
+    # two homes: one always succeeds, one never; the interval spans most of [0, 1]
+    vals = [1.0] * 5 + [0.0] * 5
+    homes = ["a"] * 5 + ["b"] * 5
+    lo, hi = bootstrap_ci(vals, homes)
+    assert lo == 0.0 and hi == 1.0
+    # the same 10 episodes as 10 independent homes give a narrower interval
+    lo10, hi10 = bootstrap_ci(vals, list(range(10)))
+    assert 0.0 < lo10 < 0.5 < hi10 < 1.0
+    # every home alike: a point interval; deterministic
+    assert bootstrap_ci([0.5] * 6, [1, 1, 2, 2, 3, 3]) == (0.5, 0.5)
+    assert bootstrap_ci(vals, list(range(10))) == (lo10, hi10)
+
+
+def test_aggregate_has_home_intervals_with_scene_seeds() -> None:
+    rows = [{"category": "chair", "success": i % 2 == 0, "spl": 0.5 * (i % 2 == 0), "ne": 0.1,
+             "max_steps_reached": False, "scene_seed": i // 2} for i in range(8)]
+    s = aggregate(rows)
+    assert s["homes"] == 4 and s["sr"] == 0.5
+    assert s["sr_ci95"] == [0.5, 0.5] and s["spl_ci95"] == [0.25, 0.25]  # every home has SR 0.5
+    assert s["per_category"]["chair"]["homes"] == 4
