@@ -34,9 +34,10 @@ def _ids_in_file(out: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def two_homes(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Three val episodes in two homes: two in the first, one in the second."""
+    """Three short val episodes in two homes: two in the first, one in the second."""
     out = tmp_path_factory.mktemp("ray_episodes") / "val"
-    generate_episode_set("val", 11, 3, out, EpisodeGenConfig(episodes_per_scene=2), progress=False)
+    cfg = EpisodeGenConfig(episodes_per_scene=2, difficulty_bins_m=(("easy", 1.5, 2.5),), oracle_check=False)
+    generate_episode_set("val", 11, 3, out, cfg, progress=False)
     return out
 
 
