@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-cache", default=None, help="directory of cached goal images (default OUT/images)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--no-write-agent", action="store_true", help="do not write agent/calibration/*.json")
+    from sim.evaluation.cli import add_ray_arguments
+
+    add_ray_arguments(parser)  # --ray: pairs scored as Ray tasks (sim.evaluation.ray_calibration); local: --threads CPUs
 
 
 # --- images ---------------------------------------------------------------------------
@@ -111,17 +114,28 @@ def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: 
     from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs
 
     cfg = replace(load_agent_config(args.config).reid, matcher=matcher_name, num_threads=args.threads)
-    matcher = make_matcher(cfg)
-    t0 = time.perf_counter()
-    feats = [matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
-             for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")]
-    t_feat = time.perf_counter() - t0
     inst = [e["instance"] for e in entries]
     ps = make_pairs(inst, args.max_negatives, args.seed)
-    t0 = time.perf_counter()
-    conf, count = score_pairs(matcher, feats, ps.pairs,
-                              tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair"))
-    t_match = time.perf_counter() - t0
+    if getattr(args, "ray", None):  # features and matching in Ray tasks; times are task CPU seconds
+        from sim.evaluation.cli import ray_options
+        from sim.evaluation.ray_calibration import score_pairs_on_ray
+
+        with tqdm(total=len(ps.pairs), desc=f"{matcher_name} pairs (ray)", unit="pair") as bar:
+            conf, count, st = score_pairs_on_ray(ray_options(args, args.threads), cfg, [e["path"] for e in entries],
+                                                 [(cache / e["path"]).read_bytes() for e in entries], ps.pairs,
+                                                 progress=bar)
+        t_feat = st["extract_s"] * len(entries) / max(st["extracted"], 1)
+        t_match = st["match_s"]
+    else:
+        matcher = make_matcher(cfg)
+        t0 = time.perf_counter()
+        feats = [matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
+                 for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")]
+        t_feat = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        conf, count = score_pairs(matcher, feats, ps.pairs,
+                                  tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair"))
+        t_match = time.perf_counter() - t0
     cats = np.array([e["category"] for e in entries])
     same_cat = cats[ps.pairs[:, 0]] == cats[ps.pairs[:, 1]]
     np.savez_compressed(out / f"{matcher_name}_scores.npz", pairs=ps.pairs, label=ps.label, weight=ps.weight,

@@ -114,3 +114,30 @@ def test_an_interrupted_driver_resumes(two_homes, local_records, cluster, tmp_pa
     assert len(ids) == len(set(ids)) == 3
     assert _comparable(out) == local_records
     assert summary["episodes"] == 3 and summary["errors"] == 0
+
+
+def test_calibration_pairs_scored_on_the_cluster_equal_the_local_scores(two_homes, cluster) -> None:
+    import cv2
+    import numpy as np
+    import skimage.data
+
+    from agent.reid.identifier import ReIDConfig, make_matcher
+    from sim.evaluation.calibration_core import make_pairs, score_pairs
+    from sim.evaluation.ray_calibration import score_pairs_on_ray
+
+    es = load_episode_set(two_homes)
+    pngs = [es.goal_image_path(e).read_bytes() for e in es.episodes]
+    for name in ("astronaut", "coffee", "chelsea"):
+        ok, buf = cv2.imencode(".png", cv2.cvtColor(getattr(skimage.data, name)(), cv2.COLOR_RGB2BGR))
+        pngs.append(buf.tobytes())
+    rgbs = [cv2.cvtColor(cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB) for b in pngs]
+    cfg = ReIDConfig(matcher="sift")
+    matcher = make_matcher(cfg)
+    pairs = make_pairs([0, 1, 1, 2, 3, 4], max_negatives=0).pairs
+    want = score_pairs(matcher, [matcher.extract(x, cfg.goal_max_keypoints) for x in rgbs], pairs)
+    conf, count, stats = score_pairs_on_ray(RayOptions(address=cluster.address), cfg, [f"i{k}" for k in range(6)],
+                                            pngs, pairs, chunk_pairs=4)
+    assert stats["tasks"] == 4 and len(pairs) == 15
+    np.testing.assert_array_equal(conf, want[0])
+    np.testing.assert_array_equal(count, want[1])
+    assert count.sum() > 0
