@@ -1,0 +1,115 @@
+"""Evaluation throughput: local worker processes against Ray on the same machine, and the
+hours 1,000 episodes would take on N such machines.
+
+    .venv/bin/python benchmarks/bench_eval_scaling.py [--episodes DIR] [--limit 20] [--agent modiin] [--cpus 2]
+
+On the same first ``--limit`` episodes, back to back: ``imgnav eval --workers CPUS`` and
+``imgnav eval --ray local --workers CPUS`` (Ray started here with CPUS CPUs; its start-up is
+timed on its own). Prints episodes per hour of each, the ratio ray/local (target >= 0.9),
+whether the per-episode records agree (metrics, steps, stop reason), the cost of one
+episode in CPU-seconds (wall x CPUs / episodes, from the Ray run) and the hours for 1,000
+episodes on N machines of CPUS cores (cost x 1000 / (N x CPUS), plus one Ray start-up;
+it ignores the tail where fewer homes than CPUs are left). Without ``--episodes``, a val
+set of ``--limit`` episodes (seed 0) is generated into a temporary directory first.
+Timings from a loaded machine are not final: run it on a quiet one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+SAME_FIELDS = ("success", "spl", "ne", "steps", "path_length_m", "stop_reason", "called_stop", "max_steps_reached")
+
+
+def _eval(ep_dir: str, agent: str, cpus: int, limit: int, out: Path, ray_options=None) -> tuple[float, list[dict]]:
+    from sim.evaluation.cli import add_arguments
+    from sim.evaluation.runner import read_records, run_evaluation
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus)])
+    t0 = time.perf_counter()
+    run_evaluation(ep_dir, agent, args, out, limit=limit, workers=cpus, progress=False, ray=ray_options)
+    return time.perf_counter() - t0, read_records(out)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--episodes", default=None, help="val episode set (default: generate --limit episodes)")
+    p.add_argument("--limit", type=int, default=20)
+    p.add_argument("--agent", default="modiin")
+    p.add_argument("--cpus", type=int, default=2)
+    p.add_argument("--machines", type=int, nargs="+", default=[1, 2, 5, 10, 25, 50])
+    p.add_argument("--json", default=None, help="also write the figures to this file")
+    args = p.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+
+    import ray
+
+    from sim.evaluation.ray_backend import RayOptions
+
+    tmp = tempfile.TemporaryDirectory()
+    ep_dir = args.episodes
+    if ep_dir is None:
+        from sim.episode_gen import generate_episode_set
+
+        ep_dir = str(Path(tmp.name) / "episodes")
+        generate_episode_set("val", 0, args.limit, ep_dir, workers=args.cpus, progress=False)
+
+    local_s, local_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "local")
+    t0 = time.perf_counter()
+    ray.init(num_cpus=args.cpus, include_dashboard=False, logging_level=logging.WARNING)
+    startup_s = time.perf_counter() - t0
+    try:
+        ray_s, ray_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "ray",
+                                RayOptions(address="local", num_cpus=args.cpus))
+    finally:
+        ray.shutdown()
+
+    n = len(local_recs)
+    assert n == len(ray_recs), (n, len(ray_recs))
+    by_id = {r["episode_id"]: r for r in local_recs}
+    same = sum(all(r[k] == by_id[r["episode_id"]][k] for k in SAME_FIELDS) for r in ray_recs)
+    eph_local, eph_ray = 3600 * n / local_s, 3600 * n / ray_s
+    eph_ray_startup = 3600 * n / (ray_s + startup_s)
+    cost_cpu_s = ray_s * args.cpus / n
+    hours = {m: (cost_cpu_s * 1000 / (m * args.cpus) + startup_s) / 3600 for m in args.machines}
+    fig = {
+        "agent": args.agent, "episodes": n, "episode_set": ep_dir, "cpus": args.cpus,
+        "local_wall_s": round(local_s, 1), "ray_wall_s": round(ray_s, 1), "ray_startup_s": round(startup_s, 2),
+        "episodes_per_hour_local": round(eph_local, 1), "episodes_per_hour_ray": round(eph_ray, 1),
+        "episodes_per_hour_ray_with_startup": round(eph_ray_startup, 1),
+        "ratio_ray_over_local": round(eph_ray / eph_local, 3),
+        "ratio_with_startup": round(eph_ray_startup / eph_local, 3),
+        "records_identical": f"{same}/{n}", "cpu_s_per_episode": round(cost_cpu_s, 1),
+        "hours_for_1000_episodes": {str(m): round(h, 2) for m, h in hours.items()},
+    }
+    print(f"{args.agent} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back")
+    print("| run | wall (s) | episodes/hour |")
+    print("| --- | ---: | ---: |")
+    print(f"| --workers {args.cpus} | {local_s:.1f} | {eph_local:.1f} |")
+    print(f"| --ray local ({args.cpus} CPUs) | {ray_s:.1f} | {eph_ray:.1f} |")
+    print(f"| --ray local incl. start-up | {ray_s + startup_s:.1f} | {eph_ray_startup:.1f} |")
+    print(f"ratio ray/local {eph_ray / eph_local:.3f} (with start-up {eph_ray_startup / eph_local:.3f}); "
+          f"Ray start-up {startup_s:.2f} s; records identical (metrics, steps, stop reason): {same}/{n}")
+    print(f"cost {cost_cpu_s:.1f} CPU-s per episode; 1,000 episodes on N machines of {args.cpus} cores:")
+    print("| N | hours |")
+    print("| ---: | ---: |")
+    for m, h in hours.items():
+        print(f"| {m} | {h:.2f} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps(fig, indent=1) + "\n")
+    tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
