@@ -12,7 +12,15 @@ The worker runs the project's one loop (CONTRIBUTING, "Contracts"):
 and after every step publishes an immutable ``StepRecord`` to the store (SQLite
 row), the status stream (event), the viewer (a non-blocking offer: the viewer
 thread throttles) and the artifact writer. An operator stop is honoured between
-steps; the robot is never sent another action after it.
+steps; the robot is never sent another action after it. A backend that waits on
+hardware (the Stretch: a move is acknowledged only after the motion) offers ``cancel()``;
+a stop calls it, so the run ends as ``stopped`` at once instead of after the wait's
+timeout. A move already sent runs to its end (the bridge has no stop action): the
+runstop button is the emergency stop.
+
+How a run ended is the agent's own account when the agent stopped (its last record's
+mode and reason, e.g. ``exhausted``), for every backend; the backend's session adds
+whether and how the run is scored.
 """
 
 from __future__ import annotations
@@ -61,6 +69,7 @@ class _Active:
     thread: threading.Thread
     stop: threading.Event
     stop_reason: str = ""
+    session: RunSession | None = None  # once opened: stop() cancels its backend's waits
 
 
 class RunManager:
@@ -136,11 +145,16 @@ class RunManager:
             active = self._active
             if active is None or active.run_id != run_id or not active.thread.is_alive():
                 return False
-            if not active.stop.is_set():
+            first = not active.stop.is_set()
+            if first:
                 active.stop_reason = reason
                 active.stop.set()
+            session = active.session
+        detail = reason
+        if first and session is not None and _cancel_backend(session, reason):
+            detail = f"{reason}; {EMERGENCY_STOP_NOTE}"
         self.store.update_run(run_id, status="stopping")
-        self.hub.publish("status", run_id, {"status": "stopping", "detail": reason})
+        self.hub.publish("status", run_id, {"status": "stopping", "detail": detail})
         return True
 
     def wait(self, run_id: str, timeout_s: float) -> bool:
@@ -186,10 +200,18 @@ class RunManager:
         status, outcome = "failed", Outcome("error", "the run did not start")
         traj_rows: list[dict[str, Any]] = []
         part_sums: dict[str, float] = {}
+        t_loop: float | None = None
+        t_last_step: float | None = None  # when the last recorded step was published
+        stop_record = None  # the agent's record of its STOP
         try:
             t0 = time.perf_counter()
             session = provider.open(resolved, goal_rgb)
             timings["open_s"] = time.perf_counter() - t0
+            with self._lock:
+                if self._active is not None and self._active.run_id == run_id:
+                    self._active.session = session
+            if stop.is_set():  # stopped while opening: reset() must not wait either
+                _cancel_backend(session, self._stop_reason(run_id) or "stopped by the operator")
             self.store.update_run(run_id, agent_config=dict(session.agent_config))
             if self.viewer is not None:
                 self.viewer.run_started(run_id, goal_rgb, {"backend": resolved.backend, **dict(resolved.options)})
@@ -200,7 +222,7 @@ class RunManager:
             trajectory: list[tuple[float, float]] = []
             reid_history: list[tuple[int, float | None, float | None]] = []
             reason = "budget"
-            t_loop = time.perf_counter()
+            t_loop = t_last_step = time.perf_counter()
             for step in range(resolved.max_steps):
                 if stop.is_set():
                     reason = "operator"
@@ -242,27 +264,38 @@ class RunManager:
                 self._publish_step(rec, row)
                 writer.add_step(rec)
                 n_steps = step + 1
+                t_last_step = time.perf_counter()
                 if action == Action.STOP:
                     reason = "agent"
+                    stop_record = record
                     break
                 obs = session.backend.observe()
-            timings["loop_s"] = time.perf_counter() - t_loop
             if reason == "operator":
                 status = "stopped"
                 outcome = session.outcome(last_action, "operator")
-                with self._lock:
-                    why = self._active.stop_reason if self._active else ""
-                outcome = Outcome(outcome.outcome, why or outcome.detail, outcome.metrics)
+                outcome = Outcome(outcome.outcome, self._stop_reason(run_id) or outcome.detail, outcome.metrics)
             else:
                 status = "finished"
                 outcome = session.outcome(last_action, reason)
+                if reason == "agent":
+                    outcome = Outcome(outcome.outcome, agent_stop_detail(stop_record, outcome.detail), outcome.metrics)
         except BackendError as exc:
-            logger.error("run %s: backend error (%s): %s", run_id, exc.reason, exc)
-            status, outcome = "failed", Outcome("error", f"backend error ({exc.reason}): {exc}")
+            if stop.is_set() and exc.reason == "cancelled" and session is not None:
+                # the operator's stop ended a wait for the robot: a stop, not a failure
+                logger.info("run %s: stopped while waiting for the robot (%s)", run_id, exc)
+                status = "stopped"
+                outcome = session.outcome(last_action, "operator")
+                why = self._stop_reason(run_id) or outcome.detail
+                outcome = Outcome(outcome.outcome, f"{why}; {EMERGENCY_STOP_NOTE}", outcome.metrics)
+            else:
+                logger.error("run %s: backend error (%s): %s", run_id, exc.reason, exc)
+                status, outcome = "failed", Outcome("error", f"backend error ({exc.reason}): {exc}")
         except Exception as exc:  # the run fails, the console lives on; the traceback goes to the log
             logger.error("run %s failed:\n%s", run_id, traceback.format_exc())
             status, outcome = "failed", Outcome("error", f"{type(exc).__name__}: {exc}")
         finally:
+            if t_loop is not None:  # kept when the loop raised, too
+                timings["loop_s"] = time.perf_counter() - t_loop
             if session is not None:
                 try:
                     session.close()
@@ -275,8 +308,9 @@ class RunManager:
         except Exception:
             logger.exception("run %s: writing artifacts failed", run_id)
         timings["artifacts_s"] = time.perf_counter() - t0
-        if n_steps:
-            timings["mean_step_ms"] = 1000.0 * timings.get("loop_s", 0.0) / n_steps
+        if n_steps and t_loop is not None and t_last_step is not None:
+            # loop start to the last recorded step: a failing wait after it is not a step
+            timings["mean_step_ms"] = 1000.0 * (t_last_step - t_loop) / n_steps
             timings["agent_mean_ms"] = {k: v / n_steps for k, v in part_sums.items()}
         ended_s = time.time()
         timings["total_s"] = ended_s - received_s
@@ -312,6 +346,11 @@ class RunManager:
             if self._active is not None and self._active.run_id == run_id:
                 self._active = None
 
+    def _stop_reason(self, run_id: str) -> str:
+        with self._lock:
+            active = self._active
+            return active.stop_reason if active is not None and active.run_id == run_id else ""
+
     def _publish_step(self, rec: StepRecord, row: StepRow) -> None:
         self.store.add_step(rec.run_id, row)
         self.hub.publish(
@@ -334,6 +373,44 @@ class RunManager:
         )
         if self.viewer is not None:
             self.viewer.offer(rec)
+
+
+EMERGENCY_STOP_NOTE = (
+    "the robot is sent nothing more; a move already sent runs to its end (the bridge has no "
+    "stop command): the runstop button is the emergency stop"
+)
+
+_AGENT_STOP_WORDS = {
+    "stopped": "the agent stopped at what it took for the object",
+    "exhausted": "the agent gave up (exhausted)",
+}
+
+
+def agent_stop_detail(record: Any, session_detail: str) -> str:
+    """How an agent-ended run ended, in the agent's own words (its STOP record's mode and
+    reason), followed by what the session says about scoring. ``session_detail`` parts
+    ("; "-separated) that only repeat "the agent stopped ..." are dropped."""
+    if record is None:
+        return session_detail
+    mode, why = str(getattr(record, "mode", "")), str(getattr(record, "reason", ""))
+    head = _AGENT_STOP_WORDS.get(mode, f"the agent stopped ({mode})")
+    if why:
+        head = f"{head}: {why}"
+    rest = [part for part in session_detail.split("; ") if part and not part.startswith("the agent stopped")]
+    return "; ".join([head, *rest])
+
+
+def _cancel_backend(session: RunSession, why: str) -> bool:
+    """Cancel the backend's waits if it offers that; True if it does."""
+    cancel = getattr(session.backend, "cancel", None)
+    if not callable(cancel):
+        return False
+    try:
+        cancel(why)
+    except Exception:  # a stop must still reach the loop (between steps)
+        logger.exception("cancelling the backend's waits failed")
+        return False
+    return True
 
 
 def _finite(value: Any) -> Any:

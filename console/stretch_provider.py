@@ -30,7 +30,8 @@ class StretchSession:
         if reason == "operator":
             return Outcome("stopped", "stopped by the operator")
         if reason == "agent":
-            return Outcome("unscored", "the agent stopped at what it took for the object (no ground truth on a real robot)")
+            # why the agent stopped comes from its own record (RunManager: agent_stop_detail)
+            return Outcome("unscored", "no ground truth on a real robot, so the run is not scored")
         return Outcome("unscored", "the step budget ran out (no ground truth on a real robot)")
 
     def close(self) -> None:

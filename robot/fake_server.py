@@ -211,6 +211,12 @@ class FakeStretch:
         with self._lock:
             return self._handled_step
 
+    @property
+    def echoed_step(self) -> int:
+        """The step the robot's messages echo (behind ``handled_step`` while acks are dropped)."""
+        with self._lock:
+            return self._echo_step
+
     def _snapshot(self) -> _Snapshot:
         with self._lock:
             return _Snapshot(

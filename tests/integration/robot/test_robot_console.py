@@ -56,6 +56,11 @@ def stretch_console(data_dir: Path, fake: FakeStretch, viewer: bool = False, **r
     return Console(ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider})
 
 
+def client_for(console: Console) -> TestClient:
+    """A client that reaches the console by its loopback address (the console checks Host)."""
+    return TestClient(create_app(console), base_url="http://127.0.0.1")
+
+
 def start_run(client: TestClient, goal_rgb: np.ndarray, max_steps: int) -> str:
     resp = client.post(
         "/api/runs",
@@ -117,7 +122,7 @@ def test_console_run_on_the_fake_stretch_reaches_the_goal(home_scenario: dict, t
     fake.start()
     console = stretch_console(tmp_path / "data", fake, viewer=True)
     try:
-        with TestClient(create_app(console)) as client:
+        with client_for(console) as client:
             backends = {b["name"]: b for b in client.get("/api/config").json()["backends"]}
             assert backends["stretch"]["available"] and backends["stretch"]["label"] == "Hello Robot Stretch"
             t0 = time.monotonic()
@@ -188,7 +193,7 @@ def test_each_fault_fails_the_run_cleanly_with_its_reason(fault, knobs, trigger,
     try:
         if trigger is not None:
             _after_actions(fake, 4, lambda: setattr(fake.knobs, trigger[0], trigger[1]))  # posture, head, 2 moves
-        with TestClient(create_app(console)) as client:
+        with client_for(console) as client:
             photo = np.random.default_rng(0).integers(0, 255, (300, 400, 3), dtype=np.uint8)  # any phone photo
             run_id = start_run(client, photo, max_steps=200)
             done = wait_final(client, run_id, timeout_s=90)
@@ -199,7 +204,119 @@ def test_each_fault_fails_the_run_cleanly_with_its_reason(fault, knobs, trigger,
                 assert fake.actions == [] and done["n_steps"] == 0  # refused before sending anything
             else:
                 assert done["n_steps"] >= 1  # the fault came after the first moves
+                # timing is kept when the loop raises (issue 12: it was recorded as 0.0)
+                assert done["timings"].get("mean_step_ms", 0.0) > 0.0, done["timings"]
+                assert done["timings"].get("loop_s", 0.0) > 0.0, done["timings"]
             assert console.manager.active_run_id is None  # the console is free for the next run
+    finally:
+        console.close()
+        fake.close()
+
+
+# --- how runs end: the agent's own words, and an operator stop that does not wait -----
+
+
+def any_photo() -> np.ndarray:
+    return np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+
+
+class ScriptedAgent:
+    """Plays ``actions`` and then STOPs with the record a Mod-IIN agent writes for ``stop_mode``."""
+
+    def __init__(self, actions: list[Action], stop_mode: str = "exhausted", stop_reason: str = "") -> None:
+        self.actions, self.stop_mode, self.stop_reason = list(actions), stop_mode, stop_reason
+        self.last_record = None
+        self._i = 0
+
+    def reset(self, goal_image: np.ndarray) -> None:
+        self._i = 0
+
+    def act(self, obs) -> Action:
+        from agent.types import AgentRecord
+
+        action = self.actions[self._i] if self._i < len(self.actions) else Action.STOP
+        self._i += 1
+        mode, reason = ("explore", "scripted") if action != Action.STOP else (self.stop_mode, self.stop_reason)
+        self.last_record = AgentRecord(step=obs.step, action=action, pose=obs.pose, mode=mode, reason=reason)
+        return action
+
+
+class ScriptedStretchProvider(StretchProvider):
+    """The real Stretch provider (backend, session, outcome) with a scripted agent."""
+
+    def __init__(self, host: str, robot_config: StretchConfig, agent: ScriptedAgent) -> None:
+        super().__init__(host, robot_config=robot_config)
+        self.agent = agent
+
+    def open(self, resolved, goal_rgb):
+        from console.stretch_provider import StretchSession
+        from robot.backend import StretchBackend
+
+        return StretchSession(StretchBackend(goal_rgb, self.robot_config), self.agent, {"agent": "scripted"})
+
+
+def scripted_console(data_dir: Path, fake: FakeStretch, agent: ScriptedAgent, **robot: Any) -> Console:
+    obs, action, state = fake.ports
+    config = StretchConfig(host="127.0.0.1", obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
+    provider = ScriptedStretchProvider("127.0.0.1", config, agent)
+    return Console(ConsoleConfig(data_dir=data_dir, viewer=None), {"stretch": provider})
+
+
+def test_an_exhausted_agent_is_recorded_in_its_own_words(tmp_path: Path) -> None:
+    fake = _box_fake()
+    why = "no reachable frontier and no goal candidate"
+    console = scripted_console(tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT, Action.MOVE_FORWARD], "exhausted", why))
+    try:
+        with client_for(console) as client:
+            run_id = start_run(client, any_photo(), max_steps=50)
+            done = wait_final(client, run_id, timeout_s=60)
+            assert done["status"] == "finished" and done["outcome"] == "unscored", done
+            detail = done["outcome_detail"]
+            assert "exhausted" in detail and why in detail, detail
+            assert "what it took for the object" not in detail, detail
+            assert "no ground truth" in detail, detail
+            assert done["n_steps"] == 3 and done["timings"]["mean_step_ms"] > 0
+    finally:
+        console.close()
+        fake.close()
+
+
+def test_an_agent_that_stops_at_the_object_says_so(tmp_path: Path) -> None:
+    fake = _box_fake()
+    why = "within stop radius, facing the goal (confirmed)"
+    console = scripted_console(tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT], "stopped", why))
+    try:
+        with client_for(console) as client:
+            run_id = start_run(client, any_photo(), max_steps=50)
+            done = wait_final(client, run_id, timeout_s=60)
+            assert done["status"] == "finished" and done["outcome"] == "unscored", done
+            assert "what it took for the object" in done["outcome_detail"] and why in done["outcome_detail"], done
+    finally:
+        console.close()
+        fake.close()
+
+
+def test_operator_stop_ends_the_run_while_the_robot_drops_acknowledgements(tmp_path: Path) -> None:
+    """The ack timeout is far beyond the test's patience: only the stop can end this run."""
+    fake = _box_fake()
+    agent = ScriptedAgent([Action.TURN_LEFT, Action.TURN_RIGHT] * 50)
+    console = scripted_console(tmp_path / "data", fake, agent, ack_timeout_s=10_000.0, resend_interval_s=0.5)
+    try:
+        _after_actions(fake, 4, lambda: setattr(fake.knobs, "drop_acks", True))  # posture, head, 2 moves
+        with client_for(console) as client:
+            run_id = start_run(client, any_photo(), max_steps=100)
+            # the client is waiting for an acknowledgement that will not come
+            poll(lambda: fake.handled_step > fake.echoed_step, bool, 60, "an unacknowledged move")
+            t0 = time.monotonic()
+            resp = client.post(f"/api/runs/{run_id}/stop")
+            assert resp.status_code == 200 and resp.json()["stopping"], resp.text
+            done = wait_final(client, run_id, timeout_s=60)
+            stop_s = time.monotonic() - t0
+            assert done["status"] == "stopped" and done["outcome"] == "stopped", done
+            assert "runstop button is the emergency stop" in done["outcome_detail"], done
+            assert done["error"] is None and done["n_steps"] >= 2
+            assert len([a for a in fake.actions if "xyt" in a]) == done["n_steps"] + 1  # nothing sent after the stop
+            print(f"\noperator stop with acknowledgements dropped: run stopped {stop_s:.2f} s after the request")
     finally:
         console.close()
         fake.close()
