@@ -25,6 +25,8 @@ from typing import Annotated, Any, AsyncIterator
 from fastapi import FastAPI, File, Form, HTTPException, Query, Request, UploadFile
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from console.artifacts import ARTIFACT_NAMES, existing_artifacts, run_dir, valid_run_id
 from console.context import Console
@@ -61,6 +63,15 @@ def create_app(console: Console, close_on_shutdown: bool = True) -> Any:
         lifespan=lifespan,
     )
     app.state.console = console
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail: Any = exc.detail
+        if isinstance(detail, str) and exc.status_code == 400:
+            # Starlette's form parser answers with bare strings ("Invalid multipart data.");
+            # say what is wrong in the API's own error shape.
+            detail = {"code": "bad_form", "message": _form_error_message(detail)}
+        return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
 
     def require_token(request: Request, form_token: str | None = None) -> None:
         if console.token is None:
@@ -195,7 +206,8 @@ def create_app(console: Console, close_on_shutdown: bool = True) -> Any:
             if v not in (None, "")
         }
         try:
-            resolved = provider.resolve(options, photo.dhash, photo.sha256)
+            # in a thread: checking a custom start builds the home's geometry once (~0.5 s)
+            resolved = await run_in_threadpool(provider.resolve, options, photo.dhash, photo.sha256)
         except OptionsError as exc:
             raise _error(422, "bad_options", str(exc)) from None
         except ProviderUnavailable as exc:
@@ -211,7 +223,7 @@ def create_app(console: Console, close_on_shutdown: bool = True) -> Any:
         return JSONResponse(run_view(row), status_code=201, headers={"location": f"/api/runs/{run_id}"})
 
     @app.get("/api/runs", summary="Recent runs, newest first")
-    def list_runs(limit: Annotated[int, Query(ge=1, le=500)] = 50, offset: Annotated[int, Query(ge=0)] = 0) -> dict[str, Any]:
+    def list_runs(limit: Annotated[int, Query(ge=1, le=500)] = 50, offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0) -> dict[str, Any]:
         return {"runs": [run_view(r) for r in console.store.list_runs(limit, offset)], "active_run": console.manager.active_run_id}
 
     def get_row(run_id: str) -> dict[str, Any]:
@@ -260,4 +272,16 @@ def create_app(console: Console, close_on_shutdown: bool = True) -> Any:
             raise _error(404, "not_written", f"{name} has not been written for run {run_id}")
         return FileResponse(path, media_type=ARTIFACT_NAMES[name])
 
-    return GuardMiddleware(app, max_bytes=console.config.max_request_bytes)
+    guarded = GuardMiddleware(app, max_bytes=console.config.max_request_bytes)
+    # Outermost: a request whose Host header is not a name of this console (DNS rebinding)
+    # gets 400 before anything else sees it.
+    return TrustedHostMiddleware(guarded, allowed_hosts=console.allowed_hosts, www_redirect=False)
+
+
+def _form_error_message(parser_message: str) -> str:
+    if parser_message.startswith("Invalid multipart data"):
+        return (
+            "the upload could not be read as a multipart form: a part's header is malformed or too long "
+            "(each part header, which holds the file name, must stay under 4 KB; rename a file with a very long name)"
+        )
+    return f"the upload could not be read as a form: {parser_message}"

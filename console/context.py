@@ -6,6 +6,7 @@ Data directory layout (everything the console writes is under it)::
     <data>/console.sqlite3        run records (console.store)
     <data>/runs/<run id>/         per-run artifacts (console.artifacts)
     <data>/sim/                   simulator homes' gallery cache (console.sim_provider)
+    <data>/console.lock           held by the console using this directory (console.datalock)
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+from console.datalock import DataDirLock
 from console.events import EventHub
 from console.manager import RunManager
 from console.photos import PhotoLimits
-from console.security import is_loopback, new_token
+from console.security import allowed_hosts, is_loopback, new_token
 from console.session import BackendProvider
 from console.store import RunStore
 from console.viewer import Viewer, ViewerConfig
@@ -36,6 +38,9 @@ class ConsoleConfig:
     max_request_bytes: int = 30 * 1024 * 1024  # the photo limit plus form fields
     photo_limits: PhotoLimits = field(default_factory=PhotoLimits)
     viewer: ViewerConfig | None = field(default_factory=ViewerConfig)  # None: no live 3D view
+    # Host names beyond the ones found automatically (loopback, the bind address, this
+    # machine's addresses and names): a DNS name on the LAN, a reverse proxy's name.
+    allowed_hosts: tuple[str, ...] = ()
 
     def token_required(self) -> bool:
         if self.require_token is not None:
@@ -48,17 +53,27 @@ class Console:
         self.config = config
         self.data_dir = Path(config.data_dir).resolve()
         self.data_dir.mkdir(parents=True, exist_ok=True)
-        self.token: str | None = None
-        if config.token_required():
-            self.token = config.token or new_token()
-        self.store = RunStore(self.data_dir / "console.sqlite3")
-        self.interrupted_on_start = self.store.mark_interrupted()
-        self.hub = EventHub()
-        self.providers = dict(providers)
-        self.viewer: Viewer | None = None
-        if config.viewer is not None:
-            self.viewer = Viewer(config.viewer, on_stop=self._stop_from_viewer, token=self.token)
-        self.manager = RunManager(self.store, self.hub, self.data_dir, self.providers, viewer=self.viewer)
+        # First of all: one console per data directory (raises DataDirLocked).
+        self.lock = DataDirLock(self.data_dir)
+        self.lock.acquire(config.host, config.port)
+        try:
+            self.token: str | None = None
+            if config.token_required():
+                self.token = config.token or new_token()
+            self.allowed_hosts = allowed_hosts(config.host, config.allowed_hosts)
+            self.store = RunStore(self.data_dir / "console.sqlite3")
+            self.interrupted_on_start = self.store.mark_interrupted()
+            self.hub = EventHub()
+            self.providers = dict(providers)
+            self.viewer: Viewer | None = None
+            if config.viewer is not None:
+                self.viewer = Viewer(
+                    config.viewer, on_stop=self._stop_from_viewer, token=self.token, allowed_hosts=self.allowed_hosts
+                )
+            self.manager = RunManager(self.store, self.hub, self.data_dir, self.providers, viewer=self.viewer)
+        except BaseException:
+            self.lock.release()
+            raise
         self._closed = False
 
     def _stop_from_viewer(self) -> str:
@@ -82,4 +97,5 @@ class Console:
             self.viewer.close()
         self.hub.close()
         self.store.close()
+        self.lock.release()
         logger.info("console closed")

@@ -118,8 +118,12 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         raise PhotoError(
             415, "unsupported_format", "the upload is not an image in a supported format (JPEG, PNG, WebP, HEIC)"
         ) from None
-    except Image.DecompressionBombError as exc:
-        raise PhotoError(413, "too_many_pixels", f"the image declares too many pixels: {exc}") from None
+    except Image.DecompressionBombError:
+        # PIL refuses images beyond twice its own limit before we can read the size; answer
+        # with our limit, not PIL's wording.
+        raise PhotoError(
+            413, "too_many_pixels", f"the image declares far more pixels than the limit of {_megapixels(limits.max_pixels)}"
+        ) from None
     except (OSError, ValueError, SyntaxError) as exc:
         raise PhotoError(422, "corrupt", f"the image header cannot be read: {exc}") from None
 
@@ -133,7 +137,7 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         raise PhotoError(
             413,
             "too_many_pixels",
-            f"the image is {width}x{height} = {width * height} pixels; the limit is {limits.max_pixels}",
+            f"the image is {width}x{height} = {_megapixels(width * height)}; the limit is {_megapixels(limits.max_pixels)}",
         )
     if min(width, height) < limits.min_side_px:
         raise PhotoError(
@@ -159,7 +163,9 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         new_size = (max(1, round(original_size[0] * scale)), max(1, round(original_size[1] * scale)))
         rgb_image = rgb_image.resize(new_size, Image.Resampling.LANCZOS)
     rgb = np.ascontiguousarray(np.asarray(rgb_image, dtype=np.uint8))
-    if float(rgb.std()) < 1.0:
+    # Per channel: a solid (200, 100, 50) has a large spread over all values but none within
+    # any channel.
+    if float(rgb.reshape(-1, 3).std(axis=0).max()) < 1.0:
         raise PhotoError(422, "blank", "the image is a single flat colour; it shows no object to look for")
     return GoalPhoto(
         rgb=rgb,
@@ -168,6 +174,11 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         sha256=hashlib.sha256(data).hexdigest(),
         dhash=dhash(rgb),
     )
+
+
+def _megapixels(n_pixels: int) -> str:
+    mp = n_pixels / 1e6
+    return f"{mp:.0f} megapixels" if mp >= 10 else f"{mp:.2g} megapixels"
 
 
 def _to_rgb(image: Image.Image) -> Image.Image:

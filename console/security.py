@@ -11,15 +11,24 @@
   from starting the robot through a visitor's browser.
 * Size. Bodies over ``max_bytes`` get 413 before they are read (Content-Length) or as
   soon as the count passes the limit (chunked uploads).
+* Host. A loopback service is otherwise open to DNS rebinding: a web page whose domain
+  is re-pointed at 127.0.0.1 is "same origin" with the console as far as the browser
+  knows, and could start the robot. The ``Host`` header must therefore name this
+  console as it is really reachable (``allowed_hosts``); Starlette's
+  ``TrustedHostMiddleware`` answers 400 otherwise. The viewer's port applies the same
+  names (``console.viewer``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import hmac
 import ipaddress
 import json
 import logging
 import secrets
+import socket
+import struct
 from typing import Any, Awaitable, Callable
 from urllib.parse import urlsplit
 
@@ -37,6 +46,120 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
+
+
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
+WILDCARD_BINDS = ("0.0.0.0", "::", "")
+_SIOCGIFADDR = 0x8915  # Linux ioctl: an interface's IPv4 address
+
+
+def interface_addresses() -> list[str]:
+    """This machine's non-loopback IPv4 addresses, one per interface that has one.
+
+    ``getaddrinfo(gethostname())`` is not enough: on Debian the host name resolves to
+    127.0.1.1, which a phone cannot open. Linux answers per interface (ioctl); elsewhere
+    the address of the default route is the best guess (a UDP connect sends nothing)."""
+    found: list[str] = []
+    try:
+        names = [name for _, name in socket.if_nameindex()]
+    except OSError:
+        names = []
+    for name in names:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                packed = fcntl.ioctl(s.fileno(), _SIOCGIFADDR, struct.pack("256s", name.encode()[:15]))
+            except OSError:  # no IPv4 address on this interface
+                continue
+        addr = socket.inet_ntoa(packed[20:24])
+        if not addr.startswith("127.") and addr not in found:
+            found.append(addr)
+    if not found:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.connect(("192.0.2.1", 9))  # TEST-NET-1: only picks the route, sends nothing
+                addr = s.getsockname()[0]
+                if not addr.startswith("127."):
+                    found.append(addr)
+            except OSError:
+                pass
+    return found
+
+
+def _host_name(host: str) -> str:
+    """A bind address or name as it appears in a Host header (IPv6 literals in brackets)."""
+    host = host.strip().lower()
+    try:
+        if ipaddress.ip_address(host.strip("[]")).version == 6:
+            return f"[{host.strip('[]')}]"
+    except ValueError:
+        pass
+    return host
+
+
+def allowed_hosts(bind_host: str, extra: tuple[str, ...] | list[str] = ()) -> list[str]:
+    """The names the console is really reachable by, for the Host check.
+
+    Loopback names always; the bind address itself; bound to every interface
+    (0.0.0.0 / ::), this machine's addresses and names (``name``, ``name.local`` for
+    mDNS, the FQDN); plus ``extra`` (``--allowed-host``: a reverse proxy's name, a DNS
+    name on the LAN). Ports are not compared: the socket already fixed the port."""
+    names: list[str] = list(LOOPBACK_NAMES)
+    if bind_host not in WILDCARD_BINDS:
+        names.append(_host_name(bind_host))
+    else:
+        names += interface_addresses()
+        hostname = socket.gethostname().lower()
+        if hostname:
+            names += [hostname, f"{hostname}.local"]
+        try:
+            fqdn = socket.getfqdn().lower()
+        except OSError:
+            fqdn = ""
+        if fqdn and fqdn != "localhost":
+            names.append(fqdn)
+    names += [_host_name(h) for h in extra if h.strip()]
+    out: list[str] = []
+    for n in names:
+        if n and n not in out:
+            out.append(n)
+    return out
+
+
+def host_of(host_header: str) -> str | None:
+    """The host part of a Host header (brackets kept for IPv6), lower case; None if malformed."""
+    text = host_header.strip().lower()
+    if not text:
+        return None
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0 or (len(text) > end + 1 and not text[end + 1 :].startswith(":")):
+            return None
+        return text[: end + 1]
+    host, _, port = text.partition(":")
+    if port and not port.isdigit():
+        return None
+    return host or None
+
+
+def host_allowed(host_header: str | None, allowed: list[str] | tuple[str, ...]) -> bool:
+    """The same rule as Starlette's TrustedHostMiddleware (exact names, ``*.domain``)."""
+    host = host_of(host_header or "")
+    if host is None:
+        return False
+    for pattern in allowed:
+        if host == pattern or (pattern.startswith("*.") and host.endswith(pattern[1:])):
+            return True
+    return "*" in allowed
+
+
+def origin_allowed(origin: str | None, host_header: str | None) -> bool:
+    """A request without Origin (curl, same-origin GET) passes; otherwise the Origin must be
+    this very server (scheme http(s), same host and port as the Host header)."""
+    if origin is None:
+        return True
+    if origin == "null":
+        return False
+    return _same_origin(origin, host_header or "")
 
 
 def new_token() -> str:

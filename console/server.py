@@ -13,10 +13,11 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import socket
 from pathlib import Path
 
 from console.context import Console, ConsoleConfig
+from console.datalock import DataDirLocked
+from console.security import WILDCARD_BINDS, interface_addresses
 from console.viewer import ViewerConfig
 
 logger = logging.getLogger(__name__)
@@ -34,14 +35,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--episodes", type=Path, default=None, help="offer the episodes of this set (imgnav episodes --out DIR) as runs")
     parser.add_argument("--stretch-host", default=None, help="offer the Stretch backend: the robot's address (stretch_ai bridge)")
     parser.add_argument("--agent-config", type=Path, default=None, help="agent YAML (default: agent/configs/sim.yaml)")
+    parser.add_argument(
+        "--allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="another name this console is reached by (a LAN DNS name, a proxy); requests naming any other "
+        "host are refused (repeatable; loopback, the bind address and this machine's addresses are always allowed)",
+    )
 
 
-def _lan_addresses() -> list[str]:
-    try:
-        infos = socket.getaddrinfo(socket.gethostname(), None, family=socket.AF_INET)
-    except OSError:
-        return []
-    return sorted({info[4][0] for info in infos if not info[4][0].startswith("127.")})
+def console_urls(host: str, port: int, token: str | None) -> list[str]:
+    """The URLs to open the console with: for a wildcard bind, this machine's interface
+    addresses (a phone cannot open 127.0.0.1 or a host name that resolves to loopback)."""
+    query = f"?token={token}" if token else ""
+    if host in WILDCARD_BINDS:
+        hosts = interface_addresses() or ["127.0.0.1"]
+    else:
+        hosts = [f"[{host}]" if ":" in host else host]
+    return [f"http://{h}:{port}/{query}" for h in hosts]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,9 +66,20 @@ def run(args: argparse.Namespace) -> int:
     viewer = None
     if not args.no_viewer:
         viewer = ViewerConfig(host=args.host, port=args.viewer_port)
-    config = ConsoleConfig(data_dir=args.data_dir, host=args.host, port=args.port, token=args.token, viewer=viewer)
+    config = ConsoleConfig(
+        data_dir=args.data_dir,
+        host=args.host,
+        port=args.port,
+        token=args.token,
+        viewer=viewer,
+        allowed_hosts=tuple(getattr(args, "allowed_host", None) or ()),
+    )
     providers = build_providers(args, Path(args.data_dir).resolve())
-    console = Console(config, providers)
+    try:
+        console = Console(config, providers)
+    except DataDirLocked as exc:
+        logger.error("%s", exc)
+        return 1
     app = create_app(console)
     for provider in providers.values():
         prepare = getattr(provider, "prepare_async", None)
@@ -64,10 +87,9 @@ def run(args: argparse.Namespace) -> int:
             prepare(console.hub)
     warm_up_async("sim")  # load the matcher while the operator takes the photo
 
-    hosts = [args.host] if args.host not in ("0.0.0.0", "::") else ["127.0.0.1", *_lan_addresses()]
-    query = f"?token={console.token}" if console.token else ""
-    for host in hosts:
-        logger.info("console: http://%s:%d/%s   (phone page /phone, console /console, API docs /docs)", host, args.port, query)
+    for url in console_urls(args.host, args.port, console.token):
+        logger.info("console: %s   (phone page /phone, console /console, API docs /docs)", url)
+    logger.info("accepted host names: %s", ", ".join(console.allowed_hosts))
     if console.token:
         logger.warning("this console is reachable from the network; its token is %s", console.token)
     if console.viewer is not None:

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -44,6 +45,23 @@ def home_fingerprint(seed: int, n_rooms: int) -> str:
     home = generate_home(seed, n_rooms=n_rooms)
     facts = [(r.name, r.rect_m) for r in home.rooms] + [(o.object_id, o.category, o.variant, o.pose_xy_yaw) for o in home.objects]
     return hashlib.sha256(repr(facts).encode()).hexdigest()[:16]
+
+
+def start_collides(seed: int, n_rooms: int, x_m: float, y_m: float) -> bool:
+    """Whether the robot's disc at (x_m, y_m) in the home frame overlaps the scene or lies
+    outside the home: the same test ``SimBackend`` applies to its start pose, from geometry
+    alone (no PyBullet world is built)."""
+    return _footprints(seed, n_rooms).collides(x_m, y_m)
+
+
+@functools.lru_cache(maxsize=8)
+def _footprints(seed: int, n_rooms: int) -> Any:
+    from sim.geometry import FootprintIndex
+    from sim.scene_gen import generate_home
+
+    home = generate_home(seed, n_rooms=n_rooms)
+    x0, y0, x1, y1 = home.bounds_m
+    return FootprintIndex(home.solid_footprints(), (x0, y0, x1, y1))
 
 
 def _world(seed: int, n_rooms: int) -> Any:

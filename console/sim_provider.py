@@ -289,6 +289,15 @@ class SimProvider:
         if home is None:
             raise OptionsError(f"no home {home_id!r}; homes are {sorted(homes)}")
         start = _parse_start(home, options.get("start"))
+        if start.id == "custom":
+            from console import sim_adapter
+
+            x, y, _ = start.pose_world
+            if sim_adapter.start_collides(home.seed, self.config.n_rooms, x, y):
+                raise OptionsError(
+                    f"start ({x:.2f}, {y:.2f}) is not a free position in {home.id}: the robot (radius 0.17 m) "
+                    "would overlap a wall or furniture there, or it is outside the home"
+                )
         max_steps = _parse_max_steps(options.get("max_steps"))
 
         target: dict[str, Any] | None = None

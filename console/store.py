@@ -20,7 +20,6 @@ import logging
 import math
 import sqlite3
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -137,12 +136,15 @@ class RunStore:
                 f"SELECT id FROM runs WHERE status IN ({','.join('?' * len(ACTIVE_STATUSES))})", ACTIVE_STATUSES
             ).fetchall()
             ids = [r["id"] for r in rows]
-            now = time.time()
             for run_id in ids:
+                # The run ended when its process did, not now: its last recorded step is the
+                # best evidence of when (else its start, else its creation).
                 self._db.execute(
                     "UPDATE runs SET status='interrupted', outcome='interrupted', "
-                    "outcome_detail='the console stopped while this run was active', ended_s=? WHERE id=?",
-                    (now, run_id),
+                    "outcome_detail='the console stopped while this run was active', "
+                    "ended_s=COALESCE((SELECT MAX(t_s) FROM steps WHERE steps.run_id=runs.id), started_s, created_s) "
+                    "WHERE id=?",
+                    (run_id,),
                 )
         if ids:
             logger.warning("marked %d run(s) interrupted by the last shutdown: %s", len(ids), ", ".join(ids))

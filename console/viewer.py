@@ -11,6 +11,14 @@ Scene (the run's start-relative frame, z up, metres):
 GUI: status, stop button (asks for the token when the console requires one), live RGB,
 depth, goal photo, keypoint matches, and re-ID score against tau over the steps.
 
+Security. viser's GUI state is shared by every client unless it is created per client,
+so the stop control (token box, button, note) is built for each client in its
+``on_client_connect`` handler: a token typed by one client is never sent to another,
+the box is masked and cleared after each use. The websocket handshake is checked like
+the API's requests (``console.security``): a Host header that is not a name of this
+console (DNS rebinding) or an Origin that is not the viewer itself (a page elsewhere
+opening a websocket to 127.0.0.1) gets the connection closed before anything is sent.
+
 Publishing never blocks the control loop: the worker thread only ``offer``s its
 latest ``StepRecord``; this module's thread takes the newest one at most
 ``pose_hz`` times a second (pose, images) and redraws the map at most ``map_hz``.
@@ -25,11 +33,12 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from console.pictures import depth_rgb, fit_height, layers_rgb, match_picture
+from console.security import LOOPBACK_NAMES, host_allowed, origin_allowed
 from console.session import Outcome, StepRecord
 
 logger = logging.getLogger(__name__)
@@ -91,6 +100,15 @@ def _set_segments(handle: Any, segments: np.ndarray, colour: tuple[int, int, int
     handle.colors = np.broadcast_to(np.array(colour, np.uint8), segments.shape).copy()
 
 
+@dataclass(slots=True)
+class _ClientControls:
+    """One browser's own stop control (never shared with other clients)."""
+
+    token_box: Any | None
+    stop_button: Any
+    note: Any
+
+
 class Viewer:
     """Owns the viser server and its publishing thread."""
 
@@ -99,13 +117,18 @@ class Viewer:
         config: ViewerConfig = ViewerConfig(),
         on_stop: Callable[[], str] | None = None,
         token: str | None = None,
+        allowed_hosts: Sequence[str] = LOOPBACK_NAMES,
     ) -> None:
         import viser  # heavy import, only when a viewer is wanted
 
         self.config = config
         self._on_stop = on_stop
         self._token = token
+        self._allowed_hosts = tuple(allowed_hosts)
+        self.n_rejected = 0
         self.server = viser.ViserServer(host=config.host, port=config.port, label="imgnav", verbose=False)
+        # Before any client can have finished its handshake: reject foreign Host/Origin.
+        self.server._websock_server.on_client_connect(self._check_handshake)
         # The share button asks an outside service for a public tunnel: never offer it.
         self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="medium")
         self.server.scene.set_up_direction("+z")
@@ -114,6 +137,11 @@ class Viewer:
         self.server.initial_camera.look_at = (1.5, 1.5, 0.0)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
+        # viser handles are touched by the run manager's worker (run_started/run_ended), this
+        # module's publishing thread and viser's own threads (clicks): one lock for all of them.
+        self._handles_lock = threading.RLock()
+        self._controls: dict[int, _ClientControls] = {}
+        self._run_active = False
         self._latest: StepRecord | None = None
         self._pending_map = False
         self._closed = False
@@ -123,6 +151,8 @@ class Viewer:
         self.n_published = 0
         self._build_scene()
         self._build_gui()
+        self.server.on_client_connect(self._client_connected)
+        self.server.on_client_disconnect(self._client_disconnected)
         self._thread = threading.Thread(target=self._loop, name="viewer", daemon=True)
         self._thread.start()
         logger.info("viewer (viser) on port %d", self.port)
@@ -151,19 +181,15 @@ class Viewer:
 
     def _build_gui(self) -> None:
         gui = self.server.gui
-        self._status = gui.add_markdown("**imgnav** - no run yet")
-        self._token_box = gui.add_text("Token", initial_value="", visible=self._token is not None)
-        self._stop_button = gui.add_button("Stop the run", color="red", disabled=True)
-        self._stop_button.on_click(self._stop_clicked)
-        self._stop_note = gui.add_markdown("")
+        self._status = gui.add_markdown("**imgnav** - no run yet", order=0.0)
         blank = np.full((8, 8, 3), 200, np.uint8)
-        with gui.add_folder("Camera"):
+        with gui.add_folder("Camera", order=10.0):
             self._rgb_img = gui.add_image(blank, label="egocentric RGB")
             self._depth_img = gui.add_image(blank, label="depth (turbo, 0-5 m)")
-        with gui.add_folder("Goal"):
+        with gui.add_folder("Goal", order=11.0):
             self._goal_img = gui.add_image(blank, label="goal photo")
             self._match_img = gui.add_image(blank, label="keypoint matches (goal | view)")
-        with gui.add_folder("Re-identification"):
+        with gui.add_folder("Re-identification", order=12.0):
             self._plot = gui.add_uplot(
                 data=(np.zeros(1), np.zeros(1), np.zeros(1)),
                 series=(
@@ -176,12 +202,62 @@ class Viewer:
                 aspect=1.6,
             )
 
-    def _stop_clicked(self, event: Any) -> None:
-        if self._token is not None and not hmac.compare_digest(self._token_box.value.strip(), self._token):
-            self._stop_note.content = "Wrong or missing token: the run goes on."
+    # --- per-client controls and the handshake check --------------------------
+
+    async def _check_handshake(self, conn: Any) -> None:
+        """viser's websocket-level connect hook (awaited before anything is streamed)."""
+        ws = self.server._websock_server._live_connections.get(conn.client_id)
+        if ws is None:
+            return
+        headers = ws.request.headers
+        host, origin = headers.get("Host"), headers.get("Origin")
+        if host_allowed(host, self._allowed_hosts) and origin_allowed(origin, host):
+            return
+        self.n_rejected += 1
+        logger.warning("viewer: refused a connection with Host %r and Origin %r", host, origin)
+        await ws.close(1008, "this viewer is not reachable by that name")
+
+    def _client_connected(self, client: Any) -> None:
+        gui = client.gui
+        token_box = None
+        if self._token is not None:
+            token_box = gui.add_text("Token", initial_value="", hint="the console's token (asked to stop a run)", order=1.0)
+            uuid = getattr(getattr(token_box, "_impl", None), "uuid", None)
+            if uuid:  # mask it: viser's text input has no password type
+                gui.add_html(
+                    f'<style>div:has(> div > p > label[for="{uuid}"]) input '
+                    "{ -webkit-text-security: disc; text-security: disc; }</style>",
+                    order=1.01,
+                )
+        with self._handles_lock:
+            button = gui.add_button("Stop the run", color="red", disabled=not self._run_active, order=2.0)
+            note = gui.add_markdown("", order=3.0)
+            controls = _ClientControls(token_box, button, note)
+            self._controls[client.client_id] = controls
+        button.on_click(lambda _event: self._stop_clicked(controls))
+
+    def _client_disconnected(self, client: Any) -> None:
+        with self._handles_lock:
+            self._controls.pop(client.client_id, None)
+
+    def _stop_clicked(self, controls: _ClientControls) -> None:
+        given = ""
+        if controls.token_box is not None:
+            given = controls.token_box.value.strip()
+            controls.token_box.value = ""  # never left in the box
+        if self._token is not None and not hmac.compare_digest(given.encode(), self._token.encode()):
+            controls.note.content = "Wrong or missing token: the run goes on."
             return
         message = self._on_stop() if self._on_stop is not None else "no run manager"
-        self._stop_note.content = message
+        controls.note.content = message
+
+    def _set_stop_enabled(self, enabled: bool) -> None:
+        with self._handles_lock:
+            self._run_active = enabled
+            for controls in self._controls.values():
+                controls.stop_button.disabled = not enabled
+                if enabled:
+                    controls.note.content = ""
 
     # --- called by the run manager (worker thread): must be cheap ---------------
 
@@ -189,14 +265,14 @@ class Viewer:
         with self._lock:
             self._run_id = run_id
             self._latest = None
-        self._status.content = f"**Run {run_id}** - starting ({info.get('backend', '')})"
-        self._goal_img.image = fit_height(goal_rgb, self.config.image_height_px)
-        self._stop_button.disabled = False
-        self._stop_note.content = ""
-        for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
-            if handle is not None:
-                handle.remove()
-        self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
+        with self._handles_lock:
+            self._status.content = f"**Run {run_id}** - starting ({info.get('backend', '')})"
+            self._goal_img.image = fit_height(goal_rgb, self.config.image_height_px)
+            self._set_stop_enabled(True)
+            for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
+                if handle is not None:
+                    handle.remove()
+            self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
 
     def offer(self, rec: StepRecord) -> None:
         with self._wake:
@@ -214,8 +290,9 @@ class Viewer:
         if outcome.metrics:
             shown = {k: v for k, v in outcome.metrics.items() if isinstance(v, (int, float, bool))}
             metrics = " - " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items())
-        self._status.content = f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
-        self._stop_button.disabled = True
+        with self._handles_lock:
+            self._status.content = f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
+            self._set_stop_enabled(False)
 
     def close(self) -> None:
         with self._wake:
@@ -253,6 +330,11 @@ class Viewer:
 
     def publish(self, rec: StepRecord, with_map: bool) -> None:
         """Send one step to the browsers (pose, images; the map too if ``with_map``)."""
+        with self._handles_lock:
+            self._publish_locked(rec, with_map)
+        self.n_published += 1
+
+    def _publish_locked(self, rec: StepRecord, with_map: bool) -> None:
         now = time.monotonic()
         self._last_pose_s = now
         r = rec.record
@@ -286,7 +368,6 @@ class Viewer:
             self._publish_images(rec)
             if with_map:
                 self._publish_map(rec)
-        self.n_published += 1
 
     def _publish_pose(self, rec: StepRecord) -> None:
         p = rec.pose

@@ -4,13 +4,17 @@ and a live console (real simulator, real agent, viser viewer) on a real server."
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 from typing import Iterator
 
 import pytest
 
-from console.sim_provider import SimProvider, SimProviderConfig
-from console_live import HOME_SEED, LiveServer, sim_console
+# The console's test helpers (poll, scripted backend) live with the unit tests: one copy.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "unit" / "console"))
+
+from console.sim_provider import SimProvider, SimProviderConfig  # noqa: E402
+from console_live import HOME_SEED, LiveServer, sim_console  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -31,3 +35,29 @@ def live_console(sim_data_dir: Path, tmp_path: Path) -> Iterator[LiveServer]:
     server = LiveServer(sim_console(data, viewer=True))
     yield server
     server.close()
+
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = [
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--no-sandbox",  # the CI runs as root
+]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).exists():
+        pytest.fail("Debian's chromium is not installed (make test installs it: apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            yield p, b
+        finally:
+            b.close()

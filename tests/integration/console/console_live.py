@@ -4,7 +4,6 @@ real Mod-IIN agent, a live uvicorn server, polling with deadlines."""
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -14,26 +13,16 @@ from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.sim_provider import SimProvider, SimProviderConfig
 from console.viewer import ViewerConfig
+from console_testkit import poll  # noqa: F401  (re-exported for the integration tests)
 
 HOME_SEED = 0
 ARTIFACTS = Path(__file__).resolve().parents[3] / "test-artifacts" / "console"
 
 
-def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float, what: str = "condition") -> Any:
-    """Call ``fn`` until ``until(value)``; a deadline, not a sleep, bounds the wait."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = fn()
-        if until(value):
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not reached within {timeout_s} s; last value {value!r}")
-        time.sleep(0.05)
-
-
 def sim_console(data_dir: Path, viewer: bool = False, **config: Any) -> Console:
     provider = SimProvider(data_dir, SimProviderConfig(home_seeds=(HOME_SEED,)))
     assert provider.available()[0], "the simulator cache should be prepared by sim_data_dir"
+    config.setdefault("allowed_hosts", ("testserver",))  # the TestClient's Host
     return Console(
         ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None, **config),
         {"sim": provider},

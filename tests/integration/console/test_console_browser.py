@@ -5,7 +5,6 @@ Screenshots go to test-artifacts/console/ (gitignored)."""
 from __future__ import annotations
 
 import hashlib
-import shutil
 from pathlib import Path
 
 import pytest
@@ -13,32 +12,6 @@ import pytest
 from console_live import ARTIFACTS, LiveServer, poll
 
 pytestmark = pytest.mark.browser
-
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = [
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--no-sandbox",  # the CI runs as root
-]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not Path(CHROMIUM).exists():
-        pytest.fail("Debian's chromium is not installed (make test installs it: apt-get install chromium)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-        try:
-            yield p, b
-        finally:
-            b.close()
-
 
 def _gallery_file(server: LiveServer, tmp_path: Path) -> tuple[Path, dict, dict]:
     """A gallery goal image saved as a file (as a phone would have it) and the start near it."""

@@ -131,7 +131,9 @@ def test_restart_recovery(data_dir: Path) -> None:
     g = h["gallery"][0]
     run = client.post("/api/runs", files={"goal_image": ("g.png", gallery_png(client, g), "image/png")}).json()
     poll(lambda: client.get(f"/api/runs/{run['id']}").json()["status"], lambda s: s == "running", 60, "running")
-    # A second process opening the same data dir finds the run active: the first "died".
+    # A second process opening the same data dir finds the run active: the first "died"
+    # (the kernel drops a dead process's flock; releasing it here stands in for that).
+    console.lock.release()
     console2 = sim_console(data_dir)
     with TestClient(create_app(console2)) as client2:
         row = client2.get(f"/api/runs/{run['id']}").json()
@@ -153,10 +155,14 @@ def test_bad_simulator_options(client: TestClient) -> None:
         ({"max_steps": "0"}, "between 1 and 1000"),
         ({"max_steps": "5000"}, "between 1 and 1000"),
         ({"target_instance": "x"}, "integer"),
+        # custom starts that the robot cannot stand on: refused at upload, not in the run's history
+        ({"start": "0,0,0"}, "not a free position"),
+        ({"start": "1000,1000,0"}, "not a free position"),
     ]:
         resp = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data=data)
         assert resp.status_code == 422, (data, resp.text)
         assert fragment in resp.json()["detail"]["message"], (data, resp.json())
+    assert client.get("/api/runs").json()["runs"] == []  # nothing was started
     assert client.get("/api/sim/gallery/home-0/..%2F..%2Fcatalog.json").status_code == 404
     assert client.get(f"/api/sim/gallery/home-{HOME_SEED}/catalog.json").status_code == 404
 
@@ -175,7 +181,7 @@ def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path:
     data = tmp_path / "data"
     shutil.copytree(sim_data_dir / "sim", data / "sim")
     provider = SimProvider(data, SimProviderConfig(home_seeds=(HOME_SEED,), episodes_dir=eps))
-    console = Console(ConsoleConfig(data_dir=data, viewer=None), {"sim": provider})
+    console = Console(ConsoleConfig(data_dir=data, viewer=None, allowed_hosts=("testserver",)), {"sim": provider})
     with TestClient(create_app(console)) as client:
         desc = client.get("/api/backends/sim").json()
         assert [e["id"] for e in desc["episodes"]] == ["val-test-0"]
@@ -188,3 +194,18 @@ def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path:
             resp = client.post("/api/runs", files={"goal_image": ("g.png", png.content, "image/png")}, data=data_)
             assert resp.status_code == 422 and fragment in resp.json()["detail"]["message"]
         assert client.get("/api/sim/episodes/..%2F..%2Fetc/goal.png").status_code == 404
+
+
+def test_catalog_starts_are_free_positions(data_dir: Path) -> None:
+    """The start check refuses colliding poses only: every start the console offers passes it."""
+    from console import sim_adapter
+
+    console = sim_console(data_dir)
+    try:
+        provider = console.providers["sim"]
+        for home in provider.homes.values():
+            for start in home.starts:
+                x, y, _ = start.pose_world
+                assert not sim_adapter.start_collides(home.seed, provider.config.n_rooms, x, y), (home.id, start)
+    finally:
+        console.close()

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import io
 import threading
+import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from PIL import Image
@@ -22,6 +23,20 @@ from agent.types import (
     Pose2D,
 )
 from console.session import Outcome, OptionsError, ResolvedRun
+
+
+def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float = 30.0, what: str = "condition") -> Any:
+    """Call ``fn`` until ``until(value)``; a deadline, not a sleep, bounds the wait.
+
+    The one copy for the console's tests (the integration helpers import it from here)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = fn()
+        if until(value):
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout_s} s; last value {value!r}")
+        time.sleep(0.02)
 
 
 def textured_rgb(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:

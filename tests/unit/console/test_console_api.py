@@ -16,22 +16,11 @@ from fastapi.testclient import TestClient
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.photos import PhotoLimits
-from console_testkit import ScriptedProvider, encode, textured_rgb
-
-
-def poll(fn, until, timeout_s: float = 30.0) -> Any:
-    """Call ``fn`` until ``until(value)``; a deadline, not a sleep, bounds the wait."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = fn()
-        if until(value):
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"condition not reached within {timeout_s} s; last value {value!r}")
-        time.sleep(0.02)
+from console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
 def make(tmp_path: Path, provider: ScriptedProvider, **config: Any) -> tuple[Console, TestClient]:
+    config.setdefault("allowed_hosts", ("testserver",))  # the TestClient's Host
     console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, **config), {"scripted": provider})
     return console, TestClient(create_app(console))
 
@@ -77,7 +66,7 @@ def test_photo_alone_starts_a_run_that_is_recorded(client: TestClient, tmp_path:
     listed = client.get("/api/runs").json()
     assert listed["runs"][0]["id"] == run["id"] and listed["active_run"] is None
     files = {p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()}
-    assert all(f.startswith(f"runs/{run['id']}/") or f.startswith("console.sqlite3") for f in files), files
+    assert all(f.startswith(f"runs/{run['id']}/") or f.startswith("console.sqlite3") or f == "console.lock" for f in files), files
 
 
 def test_second_run_gets_409_and_stop_ends_the_first(client: TestClient, provider: ScriptedProvider) -> None:
@@ -222,10 +211,33 @@ def test_restart_marks_the_active_run_interrupted(tmp_path: Path) -> None:
     provider.gate = threading.Event()
     console, client = make(tmp_path, provider)
     run = client.post("/api/runs", files={"goal_image": photo()}).json()
-    # The process "dies": nothing closes the store and the worker is stuck in apply().
+    # The process "dies": nothing closes the store and the worker is stuck in apply(); the
+    # kernel drops a dead process's flock, which releasing it here stands in for.
+    console.lock.release()
     console2, client2 = make(tmp_path, ScriptedProvider())
     row = client2.get(f"/api/runs/{run['id']}").json()
     assert row["status"] == "interrupted" and row["outcome"] == "interrupted"
     provider.gate.set()
     console.close()
     console2.close()
+
+
+def test_upload_with_a_very_long_file_name_gets_a_clear_400(client: TestClient) -> None:
+    name = "a" * 10_000 + ".jpg"
+    resp = client.post("/api/runs", files={"goal_image": (name, encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")})
+    assert resp.status_code == 400, resp.text
+    detail = resp.json()["detail"]
+    assert detail["code"] == "bad_form" and "file name" in detail["message"], detail
+    assert client.get("/api/runs").json()["runs"] == []
+
+
+def test_flat_coloured_photo_is_refused_at_upload(client: TestClient) -> None:
+    solid = encode(np.full((64, 64, 3), (200, 100, 50), np.uint8), "PNG")
+    resp = client.post("/api/runs", files={"goal_image": ("g.png", solid, "image/png")})
+    assert resp.status_code == 422 and resp.json()["detail"]["code"] == "blank"
+
+
+def test_huge_list_offset_is_a_422_not_a_crash(client: TestClient) -> None:
+    """Found by the API fuzz run: an offset beyond SQLite's integer range was a 500."""
+    assert client.get("/api/runs", params={"offset": 2**70}).status_code == 422
+    assert client.get("/api/runs", params={"offset": 5}).json()["runs"] == []

@@ -121,3 +121,31 @@ def test_dhash_survives_reencoding_and_resizing() -> None:
     assert hamming(dhash(rgb), dhash(again)) <= 6
     assert hamming(dhash(rgb), dhash(smaller)) <= 6
     assert hamming(dhash(rgb), dhash(other)) > 12
+
+
+@pytest.mark.parametrize("colour", [(200, 100, 50), (0, 0, 255), (128, 128, 128)])
+def test_flat_coloured_image_is_blank(colour: tuple[int, int, int]) -> None:
+    """Each channel is checked: a solid orange has a large spread over all values together."""
+    solid = np.full((64, 64, 3), colour, np.uint8)
+    with pytest.raises(PhotoError) as err:
+        decode_photo(encode(solid, "PNG"))
+    assert err.value.status == 422 and err.value.code == "blank"
+
+
+def test_image_far_over_the_pixel_limit_gets_our_message_not_pils() -> None:
+    """A 20000 x 20000 PNG is beyond PIL's own bomb limit, which fires before our check."""
+    data = _png_header_only(20000, 20000)
+    with pytest.raises(PhotoError) as err:
+        decode_photo(data)
+    assert err.value.status == 413 and err.value.code == "too_many_pixels"
+    message = str(err.value)
+    assert "50 megapixels" in message and "DOS" not in message and "decompression" not in message.lower()
+
+
+def test_image_over_the_pixel_limit_names_both_sizes() -> None:
+    data = _png_header_only(8000, 7000)  # 56 MP: under PIL's bomb limit, over ours
+    with pytest.raises(PhotoError) as err:
+        decode_photo(data)
+    assert err.value.code == "too_many_pixels"
+    assert "8000x7000 = 56 megapixels" in str(err.value) and "limit is 50 megapixels" in str(err.value)
+

@@ -43,3 +43,23 @@ def test_active_runs_become_interrupted_after_restart(tmp_path: Path) -> None:
     assert again.get_run("b" * 12)["status"] == "interrupted"
     assert again.get_run("c" * 12)["status"] == "finished"
     assert again.mark_interrupted() == []
+
+
+def test_interrupted_run_ends_at_its_last_step_not_at_the_restart(tmp_path: Path) -> None:
+    """A console killed mid-run (SIGKILL: nothing written at the end) leaves the run active;
+    the next start marks it interrupted with the time of its last recorded step."""
+    db = tmp_path / "db.sqlite3"
+    store = RunStore(db)
+    store.create_run("d" * 12, backend="sim", options={}, goal={}, target=None, created_s=50.0)
+    store.update_run("d" * 12, status="running", started_s=60.0)
+    for i in range(4):
+        store.add_step("d" * 12, _step(i))  # t_s = 100 + i
+    store.create_run("e" * 12, backend="sim", options={}, goal={}, target=None, created_s=70.0)
+    store.update_run("e" * 12, status="running", started_s=71.0)  # killed before its first step
+    store.close()
+
+    again = RunStore(db)
+    assert sorted(again.mark_interrupted()) == ["d" * 12, "e" * 12]
+    assert again.get_run("d" * 12)["ended_s"] == 103.0
+    assert again.get_run("e" * 12)["ended_s"] == 71.0
+    assert len(again.steps("d" * 12)) == 4

@@ -85,3 +85,67 @@ def test_occupancy_plane_is_not_mirrored() -> None:
         assert ii.min() == 10
     finally:
         viewer.close()
+
+
+# --- the viewer's port: the same Host/Origin rules as the API ------------------------------
+
+
+def _ws_connect(port: int, host_header: str, origin: str | None):
+    import socket
+
+    import viser
+    from websockets.sync.client import connect
+
+    sock = socket.create_connection(("127.0.0.1", port), timeout=10)
+    return connect(
+        f"ws://{host_header}/",
+        sock=sock,
+        origin=origin,
+        subprotocols=[f"viser-v{viser.__version__}"],
+        open_timeout=10,
+        close_timeout=2,
+    )
+
+
+def _first_message_or_close(ws) -> tuple[str, object]:
+    from websockets.exceptions import ConnectionClosed
+
+    try:
+        return "message", ws.recv(timeout=10)
+    except ConnectionClosed as exc:
+        return "closed", exc.rcvd.code if exc.rcvd is not None else None
+
+
+@pytest.mark.parametrize(
+    "host_header, origin",
+    [
+        ("evil.example:{port}", "http://evil.example:{port}"),  # DNS rebinding: Host and Origin agree
+        ("evil.example:{port}", None),
+        ("127.0.0.1:{port}", "http://evil.example"),  # a page elsewhere opening ws://127.0.0.1
+        ("127.0.0.1:{port}", "null"),
+    ],
+)
+def test_viewer_refuses_foreign_host_or_origin(host_header: str, origin: str | None) -> None:
+    stops: list[int] = []
+    viewer = Viewer(ViewerConfig(port=0), on_stop=lambda: stops.append(1) or "stopping")
+    try:
+        port = viewer.port
+        with _ws_connect(port, host_header.format(port=port), None if origin is None else origin.format(port=port)) as ws:
+            kind, value = _first_message_or_close(ws)
+        assert (kind, value) == ("closed", 1008)
+        assert viewer.n_rejected == 1 and stops == []
+    finally:
+        viewer.close()
+
+
+def test_viewer_accepts_its_own_names() -> None:
+    viewer = Viewer(ViewerConfig(port=0))
+    try:
+        port = viewer.port
+        for host_header, origin in [(f"127.0.0.1:{port}", f"http://127.0.0.1:{port}"), (f"localhost:{port}", None)]:
+            with _ws_connect(port, host_header, origin) as ws:
+                kind, _ = _first_message_or_close(ws)
+            assert kind == "message", host_header
+        assert viewer.n_rejected == 0
+    finally:
+        viewer.close()
