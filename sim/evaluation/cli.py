@@ -47,6 +47,9 @@ def add_ray_arguments(parser: argparse.ArgumentParser) -> None:
                    help="re-submissions of a task whose worker or node died (then its episodes are recorded as errors)")
     g.add_argument("--ray-max-in-flight", type=int, default=None,
                    help="tasks submitted at once (default: twice the cluster's CPUs)")
+    g.add_argument("--ray-runtime-env", default=None, metavar="JSON",
+                   help='Ray runtime environment for the tasks, e.g. \'{"working_dir": "."}\' to ship this checkout '
+                        "to nodes that have the dependencies but not the code")
 
 
 def ray_options(args: argparse.Namespace, num_cpus: int):
@@ -55,8 +58,16 @@ def ray_options(args: argparse.Namespace, num_cpus: int):
         return None
     from sim.evaluation.ray_backend import RayOptions
 
+    env = None
+    if getattr(args, "ray_runtime_env", None):
+        try:
+            env = json.loads(args.ray_runtime_env)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--ray-runtime-env is not JSON: {exc}") from exc
+        if not isinstance(env, dict):
+            raise ValueError("--ray-runtime-env must be a JSON object")
     return RayOptions(address=args.ray, num_cpus=num_cpus, max_retries=max(0, args.ray_retries),
-                      max_in_flight=args.ray_max_in_flight)
+                      max_in_flight=args.ray_max_in_flight, runtime_env=env)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
         log.error("--limit must be positive")
         return 2
     try:
+        ray = ray_options(args, args.workers)
         summary = run_evaluation(args.episodes, args.agent, args, out, limit=args.limit, workers=args.workers,
-                                 fail_fast=args.fail_fast, ray=ray_options(args, args.workers))
+                                 fail_fast=args.fail_fast, ray=ray)
     except (FileNotFoundError, ValueError) as exc:
         log.error("%s", exc)
         return 2

@@ -97,7 +97,10 @@ def score_pairs_on_ray(options: RayOptions, reid_cfg: Any, image_keys: Sequence[
     """(conf, count) per pair as ``calibration_core.score_pairs`` computes them, plus timing
     (summed over the tasks): ``{"extract_s", "match_s", "extracted", "tasks", "wall_s"}``."""
     ray = import_ray()
-    disconnect = connect(options)
+    try:
+        disconnect = connect(options)
+    except ValueError as exc:  # calibrate reports RuntimeErrors as a clean exit 2
+        raise RuntimeError(str(exc)) from exc
     t_wall = time.perf_counter()
     task = ray.remote(num_cpus=1, max_retries=options.max_retries, retry_exceptions=False)(score_chunk)
     conf = np.zeros(len(pairs), np.float64)

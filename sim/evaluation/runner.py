@@ -9,7 +9,8 @@ Re-running with the same OUT skips the episodes already in ``episodes.jsonl`` (a
 torn last line from a crash is dropped), so an interrupted run resumes.
 Episodes are grouped by scene: a worker builds each home once and runs all its
 episodes. With ``workers > 1`` the groups are spread over processes (spawned, so
-torch and PyBullet state are never forked).
+torch and PyBullet state are never forked); with ``ray=RayOptions(...)`` (``--ray``) they
+are Ray tasks on a cluster (``sim.evaluation.ray_backend``), with the same records.
 
 Adding an agent (e.g. ``--agent modiin``)
 -----------------------------------------
