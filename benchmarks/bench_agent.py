@@ -2,12 +2,15 @@
 
     .venv/bin/python benchmarks/bench_agent.py [--episodes DIR] [--count 3] [--steps 150] [--threads 2]
 
-Runs the default agent (agent/configs/sim.yaml, XFeat + LighterGlue) through the real
-simulator on the first ``--count`` episodes of a val episode set (a small one is generated
-into a temporary directory when none is given) for at most ``--steps`` steps each, and
-prints the median milliseconds per step of: the whole ``act`` (total) and its parts
-mapping, reid (with its feature extraction and matching), localisation and planning; the
-simulator's render time is reported apart. The target is total <= 150 ms on 2 cores.
+Runs the default agent (agent/configs/sim.yaml, XFeat + LighterGlue, re-ID gate on) through
+the real simulator on the first ``--count`` episodes of a val episode set (a small one is
+generated into a temporary directory when none is given) for at most ``--steps`` steps each.
+A second agent, identical but with the gate off, acts on the very same observations right
+after it (its actions are discarded), so the two are measured back to back on the same frames.
+Prints, for both, the median milliseconds per step of the whole ``act`` (total) and its parts:
+mapping, reid (feature extraction, gate, full matching), localisation and planning, the ratio
+gate on / off, and the share of frames on which the full matcher ran. The simulator's render
+time is reported apart. Target: total <= 50 ms median with the gate on, 2 threads.
 Timings from a loaded machine are not final: run it on a quiet one.
 """
 
@@ -23,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-PARTS = ("mapping", "reid", "reid_extract", "reid_match", "localisation", "planning", "total")
+PARTS = ("mapping", "reid", "reid_extract", "reid_gate", "reid_match", "localisation", "planning", "total")
 
 
 def main() -> int:
@@ -61,21 +64,27 @@ def main() -> int:
     from dataclasses import replace
 
     cfg = replace(cfg, reid=replace(cfg.reid, num_threads=args.threads))
-    agent = ModIINAgent(cfg)
-    samples: dict[str, list[float]] = {k: [] for k in PARTS}
+    agents = {"gate on": ModIINAgent(cfg), "gate off": ModIINAgent(replace(cfg, reid=replace(cfg.reid, gate=False)))}
+    samples = {name: {k: [] for k in PARTS} for name in agents}
+    full_runs = {name: 0 for name in agents}
     sim_ms: list[float] = []
     worlds: dict[int, SimWorld] = {}
     for ep in list(es.episodes)[: args.count]:
         world = worlds.get(ep.scene_seed) or worlds.setdefault(ep.scene_seed, SimWorld.from_seed(ep.scene_seed))
         backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep))
         obs = backend.reset()
-        agent.reset(obs.goal_image)
+        for agent in agents.values():
+            agent.reset(obs.goal_image)
         for _ in range(args.steps):
-            action = agent.act(obs)
-            rec = agent.last_record
-            for k in PARTS:
-                if rec is not None and k in rec.timings_ms:
-                    samples[k].append(float(rec.timings_ms[k]))
+            actions = {}
+            for name, agent in agents.items():  # same frame, back to back; "gate on" drives
+                actions[name] = agent.act(obs)
+                rec = agent.last_record
+                for k in PARTS:
+                    if rec is not None and k in rec.timings_ms:
+                        samples[name][k].append(float(rec.timings_ms[k]))
+                full_runs[name] += bool(rec is not None and rec.reid_full_matcher)
+            action = actions["gate on"]
             t = time.perf_counter()
             backend.apply(action)
             if backend.done or action == Action.STOP:
@@ -85,14 +94,21 @@ def main() -> int:
         backend.close()
     for w in worlds.values():
         w.close()
-    n = len(samples["total"])
+    n = len(samples["gate on"]["total"])
     print(f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
           f"{cfg.reid.goal_max_keypoints} goal), torch threads {args.threads}, {n} steps of "
-          f"{min(args.count, len(es.episodes))} {es.split} episodes")
+          f"{min(args.count, len(es.episodes))} {es.split} episodes; the same frames with the gate on and off")
+    med = {name: {k: statistics.median(v) for k, v in per.items() if v} for name, per in samples.items()}
+    print(f"  {'part':<13} {'gate on':>10} {'p90':>8} {'gate off':>10} {'p90':>8}   on/off")
     for k in PARTS:
-        if samples[k]:
-            print(f"  {k:<13} median {statistics.median(samples[k]):7.1f} ms   p90 "
-                  f"{sorted(samples[k])[int(0.9 * (len(samples[k]) - 1))]:7.1f} ms")
+        if k not in med["gate on"] or k not in med["gate off"]:
+            continue
+        on, off = med["gate on"][k], med["gate off"][k]
+        p90 = {name: sorted(samples[name][k])[int(0.9 * (len(samples[name][k]) - 1))] for name in agents}
+        ratio = f"{on / off:6.2f}" if off > 0.05 else "     -"
+        print(f"  {k:<13} {on:8.1f} ms {p90['gate on']:6.1f} ms {off:8.1f} ms {p90['gate off']:6.1f} ms   {ratio}")
+    print(f"  full matcher ran on {full_runs['gate on']} of {n} frames with the gate on "
+          f"({100 * full_runs['gate on'] / max(n, 1):.1f}%), {full_runs['gate off']} of {n} with it off")
     if sim_ms:
         print(f"  (simulator render+step median {statistics.median(sim_ms):.1f} ms, not part of the agent)")
     if tmp is not None:

@@ -9,7 +9,7 @@ along the optical axis: ``far * near / (far - (far - near) * buf)``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -53,12 +53,28 @@ class Render:
 
     rgb:          (H, W, 3) uint8, R,G,B.
     depth_m:      (H, W) float32 metres along the optical axis; 0 where nothing was hit.
-    instance_ids: (H, W) int32 goal-instance id per pixel, -1 for anything else.
+    instance_ids: (H, W) int64 goal-instance id per pixel, -1 for anything else; computed on
+                  first use from the renderer's raw segmentation buffer, because only oracles,
+                  metrics and goal sampling read it (not the agent's step).
     """
 
     rgb: np.ndarray
     depth_m: np.ndarray
-    instance_ids: np.ndarray
+    seg_raw: np.ndarray  # (H, W) int32 the renderer's body/link ids (or instance ids when seg_lut is None)
+    seg_lut: np.ndarray | None = None  # raw id + 1 -> instance id (-1: not a goal instance)
+    _ids: list = field(default_factory=list, repr=False)  # one-element cache of instance_ids
+
+    @property
+    def instance_ids(self) -> np.ndarray:
+        if not self._ids:
+            if self.seg_lut is None:
+                ids = np.asarray(self.seg_raw, np.int64)
+            else:
+                seg = np.asarray(self.seg_raw, np.int64)
+                seg = np.where((seg >= -1) & (seg < len(self.seg_lut) - 1), seg, -1)
+                ids = self.seg_lut[seg + 1]
+            self._ids.append(ids)
+        return self._ids[0]
 
 
 def depth_buffer_to_metres(buf: np.ndarray, near_m: float, far_m: float) -> np.ndarray:

@@ -269,9 +269,7 @@ class SimWorld:
             physicsClientId=self._client, **_LIGHT)
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
         depth_m = depth_buffer_to_metres(np.asarray(depth, dtype=np.float32).reshape(h, w), camera.near_m, camera.far_m)
-        seg = np.asarray(seg, dtype=np.int64).reshape(h, w)
-        seg = np.where((seg >= -1) & (seg < len(self._seg_lut) - 1), seg, -1)
-        return Render(rgb, depth_m, self._seg_lut[seg + 1])
+        return Render(rgb, depth_m, np.asarray(seg).reshape(h, w), self._seg_lut)
 
     def render(self, pose_world: Pose2D, camera: CameraSpec = SIM_CAMERA) -> Render:
         """The robot's camera at a floor pose."""

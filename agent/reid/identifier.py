@@ -13,8 +13,11 @@ from typing import Literal
 import numpy as np
 
 from agent.reid.base import Features, Matcher, Matches, ScoreKind, score
+from agent.reid.gate import MNNGate
 
 log = logging.getLogger(__name__)
+
+_EMPTY_XY = np.zeros((0, 2), np.float32)
 
 MatcherName = Literal["xfeat_lighterglue", "aliked_lightglue", "sift"]
 
@@ -33,16 +36,21 @@ class ReIDConfig:
     min_confidence: float = 0.1  # LightGlue's match filter threshold
     sift_ratio: float = 0.8
     num_threads: int = 2  # torch intra-op threads; 1 per worker when evaluating in parallel
+    # The cheap first stage (agent/reid/gate.py): frames whose mutual-nearest-neighbour count
+    # is below the gate threshold score 0 without the full matcher. Off in the library default
+    # (a bare ReIDConfig is the paper's matcher alone); on in both deployments' YAML.
+    gate: bool = False
+    gate_shadow: bool = False  # gate off, but compute and record its score (calibration recordings)
+    gate_min_cosine: float = 0.82
+    # explicit threshold, else ``gate_threshold`` of the calibration file (``imgnav calibrate --gate``)
+    gate_threshold: float | None = None
 
 
 def calibration_path(matcher: str, kind: str) -> Path:
     return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}.json")))
 
 
-def resolve_tau(config: ReIDConfig) -> float:
-    """tau from the config or its calibration file (a clear error when neither exists)."""
-    if config.tau is not None:
-        return float(config.tau)
+def _calibration(config: ReIDConfig) -> tuple[Path, dict]:
     path = Path(config.calibration_file) if config.calibration_file else calibration_path(config.matcher, config.score)
     if not path.is_file():
         raise FileNotFoundError(
@@ -53,7 +61,30 @@ def resolve_tau(config: ReIDConfig) -> float:
     if data.get("matcher") != config.matcher or data.get("score") != config.score:
         raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, "
                          f"not {config.matcher}/{config.score}")
-    return float(data["tau"])
+    return path, data
+
+
+def resolve_tau(config: ReIDConfig) -> float:
+    """tau from the config or its calibration file (a clear error when neither exists)."""
+    if config.tau is not None:
+        return float(config.tau)
+    return float(_calibration(config)[1]["tau"])
+
+
+def resolve_gate_threshold(config: ReIDConfig) -> float | None:
+    """The gate threshold in force (None: gate off), from the config or the calibration file."""
+    if not config.gate:
+        return None
+    if config.gate_threshold is not None:
+        return float(config.gate_threshold)
+    path, data = _calibration(config)
+    if "gate_threshold" not in data:
+        raise ValueError(f"reid.gate is on but {path} has no gate_threshold: run `imgnav calibrate --gate "
+                         f"--matcher {config.matcher}`, set reid.gate_threshold, or set reid.gate: false")
+    if abs(float(data.get("gate_min_cosine", config.gate_min_cosine)) - config.gate_min_cosine) > 1e-9:
+        raise ValueError(f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
+                         f"the config asks for {config.gate_min_cosine}")
+    return float(data["gate_threshold"])
 
 
 def make_matcher(config: ReIDConfig) -> Matcher:
@@ -91,16 +122,24 @@ class ReIDResult:
     match_ms: float
     full_matcher: bool = True  # False: the gate scored the frame 0 without the full matcher
     gate_score: float | None = None  # the gate's cheap score (None: gate off)
+    gate_ms: float = 0.0
 
 
 class ReIdentifier:
+    """Goal features once per run; per frame: extract, gate, and (when the gate lets the frame
+    through, or the gate is off) the full matcher."""
+
     def __init__(self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None) -> None:
         self.config = config
         self.matcher = matcher if matcher is not None else make_matcher(config)
         self.goal: Features | None = None
+        self.gate_threshold = resolve_gate_threshold(config)
+        self._gate = MNNGate(config.gate_min_cosine) if (config.gate or config.gate_shadow) else None
 
     def set_goal(self, goal_rgb: np.ndarray) -> Features:
         self.goal = self.matcher.extract(goal_rgb, self.config.goal_max_keypoints)
+        if self._gate is not None:
+            self._gate.set_goal(self.goal.descriptors)
         log.debug("goal image: %d keypoints", len(self.goal))
         return self.goal
 
@@ -113,6 +152,11 @@ class ReIdentifier:
         t0 = time.perf_counter()
         obs = self.extract(obs_rgb)
         t1 = time.perf_counter()
+        gate_score = self._gate.score(obs.descriptors) if self._gate is not None else None
+        t_gate = time.perf_counter()
+        if self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
+            return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, 0.0,
+                              full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3)
         m = self.matcher.match(self.goal, obs)
         t2 = time.perf_counter()
         return ReIDResult(
@@ -121,5 +165,8 @@ class ReIdentifier:
             goal_xy=self.goal.keypoints_xy[m.idx_goal],
             obs_xy=obs.keypoints_xy[m.idx_obs],
             extract_ms=(t1 - t0) * 1e3,
-            match_ms=(t2 - t1) * 1e3,
+            match_ms=(t2 - t_gate) * 1e3,
+            full_matcher=True,
+            gate_score=gate_score,
+            gate_ms=(t_gate - t1) * 1e3,
         )

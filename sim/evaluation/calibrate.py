@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from sim.evaluation.cli import add_ray_arguments
 
     add_ray_arguments(parser)  # --ray: pairs scored as Ray tasks (sim.evaluation.ray_calibration); local: --threads CPUs
+    from sim.evaluation.gate_calibration import add_arguments as add_gate_arguments
+
+    add_gate_arguments(parser)
 
 
 # --- images ---------------------------------------------------------------------------
@@ -179,6 +182,11 @@ def run(args: argparse.Namespace) -> int:
     cache = Path(args.image_cache) if args.image_cache else out / "images"
     entries = load_or_sample_images(cache, args.instances, args.images_per_instance, args.scene_set)
     log.info("%d images of %d instances", len(entries), len({e["instance"] for e in entries}))
+    if getattr(args, "gate", False):
+        from sim.evaluation.gate_calibration import calibrate_gate
+
+        calibrate_gate(entries, cache, out, args)
+        return 0
     table = {}
     for name in args.matcher:
         try:
