@@ -4,12 +4,26 @@ The matcher (keypoint network weights) is built once per process and shared by t
 the console executes one run at a time, so no two agents use it at once. ``warm_up`` builds
 it and runs one extraction and match ahead of the first run, so an operator's first upload
 does not pay for loading weights and torch's one-off set-up.
+
+The re-ID threshold tau of a deployment (DESIGN section 5: thresholds do not transfer
+between cameras; the reference code used 24.5 in simulation and 6.0 on the robot):
+
+1. ``reid.tau`` set in the deployment YAML, else
+2. the deployment's own calibration ``<data_dir>/calibration/<deployment>.json`` (written
+   by the console from the operator's photos: keys matcher, score, tau, same_pairs,
+   different_pairs, created, source) when a ``Deployment`` names its directory, else
+3. the YAML's ``reid.calibration_file``, else the packaged simulator calibration
+   ``agent/calibration/<matcher>_<score>.json``.
+
+The run's stored configuration says which (``tau_resolved``, ``tau_source``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
+import math
 import threading
 import time
 from pathlib import Path
@@ -25,7 +39,8 @@ _matchers: dict[tuple, Any] = {}
 _matchers_lock = threading.Lock()
 
 
-def _shared_matcher(reid_config: Any) -> Any:
+def shared_matcher(reid_config: Any) -> Any:
+    """The process-wide matcher for a re-ID config (built on first use)."""
     from agent.reid.identifier import make_matcher
 
     key = (reid_config.matcher, reid_config.max_side_px, reid_config.min_confidence, reid_config.sift_ratio)
@@ -35,20 +50,94 @@ def _shared_matcher(reid_config: Any) -> Any:
         return _matchers[key]
 
 
-def build_agent(deployment: str | Path) -> tuple[Agent, dict[str, Any]]:
+CALIBRATION_KEYS = ("matcher", "score", "tau", "same_pairs", "different_pairs", "created", "source")
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Deployment:
+    """A deployment name (``stretch``) and the directory of its own calibrations
+    (``<data_dir>/calibration``; None: use the packaged one)."""
+
+    name: str
+    calibration_dir: Path | None = None
+
+    def __str__(self) -> str:
+        return self.name
+
+    def calibration_path(self) -> Path | None:
+        return None if self.calibration_dir is None else deployment_calibration_path(self.calibration_dir, self.name)
+
+
+def deployment_calibration_path(calibration_dir: Path, deployment: str) -> Path:
+    """Where a deployment's own calibration lives: ``<data_dir>/calibration/<deployment>.json``."""
+    return Path(calibration_dir) / f"{deployment}.json"
+
+
+def read_deployment_calibration(path: Path, matcher: str, score: str) -> dict[str, Any]:
+    """A deployment calibration file, checked: every key present, tau a positive finite
+    number, for the deployment's matcher and score (a tau calibrated for another score
+    means nothing here). Raises ValueError with the file's name otherwise."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"deployment calibration {path} cannot be read: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"deployment calibration {path} is not a JSON object")
+    missing = [k for k in CALIBRATION_KEYS if k not in data]
+    if missing:
+        raise ValueError(f"deployment calibration {path} lacks {missing}")
+    if (data["matcher"], data["score"]) != (matcher, score):
+        raise ValueError(
+            f"deployment calibration {path} is for {data['matcher']}/{data['score']}, but the deployment "
+            f"uses {matcher}/{score}: calibrate again with the deployment's matcher"
+        )
+    tau = data["tau"]
+    if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau) or tau <= 0:
+        raise ValueError(f"deployment calibration {path}: tau must be a positive number, got {tau!r}")
+    return data
+
+
+def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> tuple[Any, dict[str, Any]]:
+    """The agent config with the deployment's calibration wired in, and where its tau comes
+    from (``tau_source``: kind, path, and the calibration's own facts when it has them)."""
+    from agent.reid.identifier import calibration_path
+
+    reid = config.reid
+    if reid.tau is not None:
+        return config, {"kind": "deployment_yaml", "path": None, "note": "reid.tau set in the deployment YAML"}
+    own = deployment.calibration_path() if isinstance(deployment, Deployment) else None
+    if own is not None and own.is_file():
+        data = read_deployment_calibration(own, reid.matcher, reid.score)
+        config = dataclasses.replace(config, reid=dataclasses.replace(reid, calibration_file=str(own)))
+        facts = {k: data[k] for k in CALIBRATION_KEYS if k not in ("matcher", "score", "tau")}
+        return config, {"kind": "deployment_calibration", "path": str(own), **facts}
+    if reid.calibration_file:
+        return config, {"kind": "yaml_calibration_file", "path": str(reid.calibration_file)}
+    packaged = calibration_path(reid.matcher, reid.score)
+    note = "simulator goal pairs (imgnav calibrate), not this deployment's camera"
+    if own is not None:
+        note += f"; no {own} yet (calibrate from the operator's photos)"
+    return config, {"kind": "packaged_simulator_calibration", "path": str(packaged), "note": note}
+
+
+def build_agent(deployment: str | Path | Deployment) -> tuple[Agent, dict[str, Any]]:
     """The agent and its full configuration as plain data (stored with the run).
 
-    ``deployment`` is a deployment name (``sim``, ``stretch``) or a YAML path. The first
-    call loads the matcher's weights from the installed package (about 1 s on 2 cores);
-    later calls reuse them."""
+    ``deployment`` is a deployment name (``sim``, ``stretch``), a YAML path, or a
+    ``Deployment`` (a name and where its own calibration lives). The first call loads the
+    matcher's weights from the installed package (about 1 s on 2 cores); later calls
+    reuse them."""
     from agent.config import load_agent_config
     from agent.policy import ModIINAgent
 
-    config = load_agent_config(deployment)
-    agent = ModIINAgent(config, matcher=_shared_matcher(config.reid))
+    config = load_agent_config(str(deployment) if isinstance(deployment, Deployment) else deployment)
+    config, tau_source = resolve_deployment_tau(config, deployment)
+    agent = ModIINAgent(config, matcher=shared_matcher(config.reid))
     as_dict = dataclasses.asdict(config)
     as_dict["deployment"] = str(deployment)
     as_dict["tau_resolved"] = getattr(agent, "tau", None)
+    as_dict["tau_source"] = tau_source
+    logger.info("agent %s: tau %s from %s (%s)", deployment, as_dict["tau_resolved"], tau_source["kind"], tau_source["path"])
     return agent, as_dict
 
 
@@ -58,7 +147,7 @@ def warm_up(deployment: str | Path = "sim") -> float:
 
     t0 = time.perf_counter()
     config = load_agent_config(deployment)
-    matcher = _shared_matcher(config.reid)
+    matcher = shared_matcher(config.reid)
     rng = np.random.default_rng(0)
     image = (rng.random((640, 360, 3)) * 255).astype(np.uint8)
     goal = matcher.extract(image, config.reid.goal_max_keypoints)

@@ -28,8 +28,12 @@ def build_providers(args: argparse.Namespace, data_dir: Path) -> dict[str, Backe
     providers: dict[str, BackendProvider] = {"sim": SimProvider(data_dir, sim_config)}
     stretch_host = getattr(args, "stretch_host", None)
     if stretch_host:
+        from console.agents import Deployment
         from console.stretch_provider import StretchProvider
 
-        providers["stretch"] = StretchProvider(stretch_host)
+        # the robot's tau: the operator's own calibration in the data directory, when made
+        providers["stretch"] = StretchProvider(
+            stretch_host, agent_deployment=Deployment("stretch", data_dir / "calibration")  # type: ignore[arg-type]
+        )
         logger.info("Stretch backend offered (robot at %s)", stretch_host)
     return providers
