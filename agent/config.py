@@ -38,6 +38,24 @@ class PolicyConfig:
     # when the stop region is unreachable, the nearest cells up to this much farther will do
     stop_radius_slack_m: float = 0.25
     verify_scan_steps: int = 4  # turns (left, right, right, left) looking for a confirmation
+    # "close_range": the paper-plus check above (scan at the stop point, confirm by a detection
+    # within verify_range_m); "approach": a candidate without a detection from within
+    # verify_range_m is approached to the verify ring and looked at before it is trusted
+    verify_by: Literal["close_range", "approach"] = "close_range"
+    # frames scoring at least this share of tau add goal points too, as evidence of a
+    # *potential* candidate, which is verified by approach before it is trusted; 1.0: only
+    # detections add points (the paper)
+    potential_tau_ratio: float = 1.0
+    verify_distance_m: float = 2.0  # the verify ring's outer radius around the candidate's cells
+    # the ring's inner radius: where the level camera starts to lose the candidate's top
+    # ((camera height - top of its points) / tan(half vertical FOV)), plus this margin
+    verify_min_margin_m: float = 0.3
+    verify_views: int = 8  # steps looking at a potential candidate from the ring before rejecting it
+    # where to stop: "radius" = within stop_radius_m of the nearest goal cell (the paper);
+    # "core" = within stop_radius_m of the candidate's core cells (robust to stray points), and
+    # closer than stop_radius_m of the nearest one
+    stop_rule: Literal["radius", "core"] = "radius"
+    stop_core_quantile: float = 0.7  # core cells: this share of the cells nearest to the points' median
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped

@@ -52,6 +52,19 @@ class Candidate:
     n_points: int
     max_score: float
     n_frames: int
+    id: int = -1  # stable: the index of its oldest point (clusters that merge keep the older id)
+    frames: tuple[int, ...] = ()  # steps that added points to it, ascending
+
+
+@dataclass(frozen=True, slots=True)
+class View:
+    """One frame's contribution: its step, re-ID score, the distance from the robot to the
+    centroid of the points it added (metres) and how many points it added."""
+
+    step: int
+    score: float
+    distance_m: float
+    n_points: int
 
 
 class GoalLocaliser:
@@ -63,6 +76,11 @@ class GoalLocaliser:
         self._xyz = np.zeros((0, 3), np.float32)
         self._score = np.zeros(0, np.float32)
         self._frame = np.zeros(0, np.int64)
+        self._views: dict[int, View] = {}
+
+    def view(self, frame: int) -> "View | None":
+        """The view (step) that added points, or None."""
+        return self._views.get(frame)
 
     @property
     def points_xyz(self) -> np.ndarray:
@@ -103,7 +121,7 @@ class GoalLocaliser:
         gx = np.clip(np.round(goal_xy[:, 0]).astype(int), 0, w - 1)
         gy = np.clip(np.round(goal_xy[:, 1]).astype(int), 0, h - 1)
         on_object = goal_mask[gy, gx]
-        return self._add(self.points_from_pixels(obs, obs_xy[on_object]), score, obs.step)
+        return self._add(self.points_from_pixels(obs, obs_xy[on_object]), score, obs)
 
     def add_mask_pixels(self, obs: Observation, ego_mask: np.ndarray, score: float) -> np.ndarray:
         """Oracle localisation: lift (a subsample of) the egocentric instance mask (H, W) bool."""
@@ -112,11 +130,14 @@ class GoalLocaliser:
             vu = vu[np.linspace(0, len(vu) - 1, self.config.max_oracle_pixels).astype(int)]
         uv = vu[:, ::-1].astype(np.float32)
         # mask pixels are exact: no depth window (it would mix in the background at the edges)
-        return self._add(self.points_from_pixels(obs, uv, window_px=0), score, obs.step)
+        return self._add(self.points_from_pixels(obs, uv, window_px=0), score, obs)
 
-    def _add(self, xyz: np.ndarray, score: float, frame: int) -> np.ndarray:
+    def _add(self, xyz: np.ndarray, score: float, obs: Observation) -> np.ndarray:
         if len(xyz) < self.config.min_points_per_frame:
             return np.zeros((0, 3), np.float32)
+        frame = obs.step
+        c = xyz[:, :2].mean(axis=0)
+        self._views[frame] = View(frame, float(score), float(np.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m)), len(xyz))
         self._xyz = np.vstack([self._xyz, xyz.astype(np.float32)])
         self._score = np.concatenate([self._score, np.full(len(xyz), score, np.float32)])
         self._frame = np.concatenate([self._frame, np.full(len(xyz), frame, np.int64)])
@@ -145,13 +166,16 @@ class GoalLocaliser:
         _, labels = cv2.connectedComponents(cv2.dilate(occ, kernel), connectivity=8)
         point_label = labels[local[:, 0], local[:, 1]]
         xyz_k, score_k, frame_k = self._xyz[keep], self._score[keep], self._frame[keep]
+        index_k = np.flatnonzero(keep)
         out = []
         for lab in np.unique(point_label):
             sel = point_label == lab
             pts = xyz_k[sel]
             cells = np.unique(ij_k[sel], axis=0)
             c = pts[:, :2].mean(axis=0)
+            frames = np.unique(frame_k[sel])
             out.append(Candidate(int(lab), pts, cells, (float(c[0]), float(c[1])), int(sel.sum()),
-                                 float(score_k[sel].max()), int(len(np.unique(frame_k[sel])))))
+                                 float(score_k[sel].max()), int(len(frames)), int(index_k[sel].min()),
+                                 tuple(int(f) for f in frames)))
         out.sort(key=lambda c: c.n_points, reverse=True)
         return out

@@ -29,7 +29,7 @@ class Mode(str, enum.Enum):
     LOOK_AROUND = "look_around"  # the initial full turn
     EXPLORE = "explore"  # heading for a frontier
     APPROACH = "approach"  # heading for a goal candidate (or turning to face it)
-    VERIFY = "verify"  # at the candidate, scanning for a confirming re-match
+    VERIFY = "verify"  # confirming a candidate: scanning at the stop point, or approaching and looking at it
     RESCAN = "rescan"  # no reachable frontier: forgive and look around again
     STOPPED = "stopped"  # STOP at a (confirmed) candidate
     EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
@@ -53,7 +53,6 @@ class Decision:
     target_kind: str | None = None
     candidate: Candidate | None = None
     planner_error: str | None = None
-    candidate_id: int | None = None  # id in the candidate memory (``agent.candidates``), when kept
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,9 +68,13 @@ class ApproachState:
 
 @dataclass(frozen=True, slots=True)
 class VerifyState:
-    """Scanning at the stop point for a confirmation: index into ``SCAN_TURNS``."""
+    """Verifying a candidate. ``close_range``: scanning at the stop point, ``scan_index`` into
+    ``SCAN_TURNS``. ``approach``: looking at a potential candidate from the verify ring,
+    ``views`` steps so far (``candidate_id`` names it)."""
 
     scan_index: int = 0
+    candidate_id: int | None = None
+    views: int = 0
 
 
 SCAN_TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.TURN_LEFT)

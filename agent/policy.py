@@ -30,6 +30,7 @@ from typing import Callable
 
 import numpy as np
 
+from agent.candidates import CandidateMemory, CandidateState, GoalCandidate, evaluate
 from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
@@ -99,6 +100,7 @@ class ModIINAgent:
         self.grid = GridMap(self.config.mapping)
         self.explorer = FrontierExplorer(self.config.frontier)
         self.localiser = GoalLocaliser(self.config.localisation)
+        self.memory = CandidateMemory()
         if self.reid is not None:
             self.reid.set_goal(goal_image)
         self.goal_mask = self.segmenter.mask(goal_image) if self.segmenter is not None else None
@@ -148,13 +150,17 @@ class ModIINAgent:
         # 3. localisation
         t = time.perf_counter()
         added = _EMPTY3
+        potential = (not detected and pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0
+                     and self.tau is not None and score >= pc.potential_tau_ratio * self.tau)
+        if potential:
+            self._localise(obs, result, score)
         if detected:
             added = self._localise(obs, result, score)
             if len(added):
                 c = added[:, :2].mean(axis=0)
                 if math.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m) <= pc.verify_range_m:
                     self._set(confirmed_xy_m=self._state.confirmed_xy_m + ((float(c[0]), float(c[1])),))
-        candidates = self.localiser.candidates(self.grid)
+        candidates = self._evaluate(self.localiser.candidates(self.grid))
         timings["localisation"] = _ms(t)
 
         # 4. decision and planning
@@ -171,6 +177,8 @@ class ModIINAgent:
             snap = self.grid.snapshot(frontier_mask(self.grid, self.config.frontier.min_cluster_cells))
         timings["total"] = _ms(t_start)  # includes the record's map snapshot
         plan, cand = decision.plan, decision.candidate
+        robot_xy = (obs.pose.x_m, obs.pose.y_m)
+        live = self._evaluate(self.localiser.candidates(self.grid)) if len(self.localiser.points_xyz) else []
         self._record = AgentRecord(
             step=obs.step,
             action=action,
@@ -191,6 +199,8 @@ class ModIINAgent:
             map=snap,
             timings_ms=timings,
             planner_error=decision.planner_error,
+            candidates=self.memory.infos(live, robot_xy),
+            candidate_id=cand.id if cand is not None else None,
         )
         return action
 
@@ -245,12 +255,22 @@ class ModIINAgent:
         assert result is not None and self.goal_mask is not None
         return self.localiser.add_matches(obs, result.goal_xy, result.obs_xy, self.goal_mask, score)
 
-    def _pick(self, candidates: list[Candidate]) -> Candidate | None:
+    def _evaluate(self, clusters: list[Candidate]) -> list[GoalCandidate]:
+        """Clusters -> candidates with their evidence and state (``agent.candidates``)."""
+        pc = self.config.policy
+        tau = self.tau if self.tau is not None else 0.5  # the oracle's score is 1 or 0
+        by_approach = pc.verify and pc.verify_by == "approach"
+        return [evaluate(c, self.localiser, tau, pc.verify_range_m if by_approach else None) for c in clusters]
+
+    def _pick(self, candidates: list[GoalCandidate]) -> GoalCandidate | None:
+        """Confirmed candidates first; among them (or among the potential ones when none is
+        confirmed) the largest cluster (the paper), or the best-scoring one."""
         if not candidates:
             return None
-        if self.config.policy.rank_candidates_by == "score":
-            return max(candidates, key=lambda c: (c.max_score, c.n_points))
-        return candidates[0]
+        pool = [c for c in candidates if c.state == CandidateState.CONFIRMED] or candidates
+        if self.config.policy.rank_candidates_by == "score" or pool[0].state == CandidateState.POTENTIAL:
+            return max(pool, key=lambda c: (c.best_score, c.cluster.n_points))
+        return pool[0]
 
     def _confirmed(self, cand: Candidate) -> bool:
         if not self.config.policy.verify:
@@ -262,26 +282,30 @@ class ModIINAgent:
         d = np.hypot(cells[:, None, 0] - conf[None, :, 0], cells[:, None, 1] - conf[None, :, 1])
         return bool(d.min() <= self.config.policy.verify_match_radius_m)
 
-    def _reject(self, cand: Candidate, why: str) -> None:
+    def _reject(self, cand: Candidate, why: str, robot_xy_m: tuple[float, float]) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
+        self.memory.reject(cand, robot_xy_m)
         self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m)
         a = self._state.approach
         self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0), verify=None)
 
     # --- the state machine -----------------------------------------------------------
 
-    def _decide(self, obs: Observation, candidates: list[Candidate]) -> Decision:
+    def _decide(self, obs: Observation, candidates: list[GoalCandidate]) -> Decision:
         pc = self.config.policy
-        cand = self._pick(candidates)
-        if cand is None and self._state.steps < pc.look_around_turns:
+        picked = self._pick(candidates)
+        if picked is None and self._state.steps < pc.look_around_turns:
             return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND,
                             f"initial look-around {self._state.steps + 1}/{pc.look_around_turns}")
-        if cand is not None:
-            self.grid.set_goal_cells(cand.cells_ij)
-            decision = self._approach(obs, cand)
+        if picked is not None:
+            self.grid.set_goal_cells(picked.cluster.cells_ij)
+            if picked.state == CandidateState.POTENTIAL:
+                decision = self._verify_by_approach(obs, picked)
+            else:
+                decision = self._approach(obs, picked.cluster)
             if decision is not None:
                 return decision
-            cands = self.localiser.candidates(self.grid)  # the candidate was rejected
+            cands = self._evaluate(self.localiser.candidates(self.grid))  # the candidate was rejected
             self.grid.clear_goal()
             if cands:
                 return self._decide(obs, cands)
@@ -293,12 +317,13 @@ class ModIINAgent:
         """APPROACH (and VERIFY at the stop point); None when the candidate was rejected."""
         pc = self.config.policy
         grid, pose = self.grid, obs.pose
-        region = region_within(grid.layers.goal, pc.stop_radius_m, grid.resolution_m)
+        stop_cells = self._stop_cells(cand)
+        region = region_within(stop_cells, pc.stop_radius_m, grid.resolution_m)
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
         near_enough = (self._state.approach.region_unreachable or self._blocked_here(pose)) and region_within(
-            grid.layers.goal, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
+            stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
             return self._at_candidate(obs, cand)
         self._set(verify=None)
@@ -311,14 +336,14 @@ class ModIINAgent:
             except PlanError:
                 # The stop region can be out of reach (a TV on a deep stand, the middle of a
                 # bed): head for the reachable cells nearest to the goal instead.
-                wider = region_within(grid.layers.goal, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
+                wider = region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
                 plan = self.planner.plan(grid, field, pose, wider)
                 a = replace(a, region_unreachable=True)
         except PlanError as exc:
             a = replace(a, unreachable_steps=a.unreachable_steps + 1)
             self._set(approach=a)
             if a.unreachable_steps >= pc.unreachable_goal_steps:
-                self._reject(cand, f"unreachable for {a.unreachable_steps} steps")
+                self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"unreachable for {a.unreachable_steps} steps")
                 return None
             # keep looking around: the map may open a way (a new view, a cleared collision)
             return Decision(Action.TURN_LEFT, Mode.APPROACH, "goal not reachable yet", target_kind="goal",
@@ -334,10 +359,95 @@ class ModIINAgent:
             a = replace(a, stall_steps=a.stall_steps + 1)
         self._set(approach=a)
         if a.stall_steps > pc.approach_patience_steps:
-            self._reject(cand, f"no progress for {a.stall_steps} steps")
+            self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"no progress for {a.stall_steps} steps")
             return None
         return Decision(self._safe(plan, pose, field), Mode.APPROACH, "navigating to the goal candidate", plan=plan,
                         target_kind="goal", candidate=cand)
+
+    def _stop_cells(self, cand: Candidate) -> np.ndarray:
+        """(H, W) bool: the cells the stop region is measured from. ``radius``: all the
+        candidate's cells (the goal layer). ``core``: the share ``stop_core_quantile`` of them
+        nearest to the median of its points, so that stray points (depth at a keypoint on the
+        object's edge read off the wall behind) do not pull the stop point off the object."""
+        pc = self.config.policy
+        if pc.stop_rule == "radius" or len(cand.cells_ij) < 4:
+            return self.grid.layers.goal
+        xy = self.grid.ij_to_xy(cand.cells_ij)
+        med = np.median(cand.points_xyz[:, :2], axis=0)
+        d = np.hypot(xy[:, 0] - med[0], xy[:, 1] - med[1])
+        keep = cand.cells_ij[d <= np.quantile(d, pc.stop_core_quantile)]
+        keep = keep[self.grid.in_bounds(keep)]
+        mask = np.zeros(self.grid.shape, bool)
+        mask[keep[:, 0], keep[:, 1]] = True
+        return mask
+
+    def _verify_by_approach(self, obs: Observation, cand: GoalCandidate) -> Decision | None:
+        """VERIFY a potential candidate by approach (IEVE's explore-verify-exploit): go to the
+        verify ring around it, face it and look; a detection from there confirms it (its state
+        turns ``confirmed`` and the agent approaches to stop), ``verify_views`` looks without one
+        reject it. The ring's inner radius keeps the candidate's top in the level camera's view
+        (a low object vanishes below the image closer than about 1.3-1.9 m)."""
+        pc = self.config.policy
+        grid, pose = self.grid, obs.pose
+        cl = cand.cluster
+        robot_xy = (pose.x_m, pose.y_m)
+        top_m = float(np.quantile(cl.points_xyz[:, 2], 0.9)) if len(cl.points_xyz) else 0.0
+        half_vfov = math.atan2(0.5 * obs.intrinsics.height_px, obs.intrinsics.fy) - obs.camera_tilt_rad
+        inner = max(0.0, (obs.camera_height_m - top_m) / math.tan(half_vfov)) + pc.verify_min_margin_m if half_vfov > 0 else 0.0
+        outer = max(pc.verify_distance_m, inner + 0.5)
+        ring = region_within(grid.layers.goal, outer, grid.resolution_m) & ~region_within(grid.layers.goal, inner, grid.resolution_m)
+        agent_ij = grid.cell_of(pose)
+        v = self._state.verify
+        if v is None or v.candidate_id != cl.id:
+            v = VerifyState(candidate_id=cl.id)
+        if ring[agent_ij]:
+            bearing = math.atan2(cl.centroid_xy_m[1] - pose.y_m, cl.centroid_xy_m[0] - pose.x_m)
+            err = wrap_angle(bearing - pose.yaw_rad)
+            if abs(err) > math.radians(pc.facing_tolerance_deg):
+                self._set(verify=v)
+                return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.VERIFY,
+                                "verify: turning to look at the potential candidate", target_kind="goal", candidate=cl)
+            if v.views >= pc.verify_views:
+                self._reject(cl, robot_xy_m=robot_xy, why=f"not re-identified in {v.views} looks from the verify ring")
+                return None
+            self._set(verify=replace(v, views=v.views + 1))
+            # a new viewpoint each look: a step nearer while that stays in the ring, else a
+            # small turn off and back onto the bearing
+            ahead = np.array(robot_xy) + FORWARD_STEP_M * np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
+            a_ij = grid.xy_to_ij(ahead[None])[0]
+            if grid.in_bounds(a_ij[None])[0] and ring[a_ij[0], a_ij[1]] and not self._blocked_here(pose):
+                field = self.planner.distance_field(grid, pose)
+                if self.planner.line_free(grid, field, np.array(robot_xy), ahead):
+                    return Decision(Action.MOVE_FORWARD, Mode.VERIFY, f"verify: look {v.views + 1}, stepping nearer",
+                                    target_kind="goal", candidate=cl)
+            turn = Action.TURN_LEFT if v.views % 2 == 0 else Action.TURN_RIGHT
+            return Decision(turn, Mode.VERIFY, f"verify: look {v.views + 1}", target_kind="goal", candidate=cl)
+        self._set(verify=v)
+        field = self.planner.distance_field(grid, pose, extra_targets=ring)
+        a = self._state.approach
+        try:
+            plan = self.planner.plan(grid, field, pose, ring)
+        except PlanError as exc:
+            a = replace(a, unreachable_steps=a.unreachable_steps + 1)
+            self._set(approach=a)
+            if a.unreachable_steps >= pc.unreachable_goal_steps:
+                self._reject(cl, robot_xy_m=robot_xy, why=f"verify ring unreachable for {a.unreachable_steps} steps")
+                return None
+            return Decision(Action.TURN_LEFT, Mode.VERIFY, "verify ring not reachable yet", target_kind="goal",
+                            candidate=cl, planner_error=f"{exc.reason}: {exc}")
+        a = replace(a, unreachable_steps=0)
+        if a.target_xy_m is None or math.dist(a.target_xy_m, cl.centroid_xy_m) > 0.5:
+            a = replace(a, target_xy_m=cl.centroid_xy_m, best_distance_m=math.inf, stall_steps=0)
+        if plan.distance_m < a.best_distance_m - 0.05:
+            a = replace(a, best_distance_m=plan.distance_m, stall_steps=0)
+        else:
+            a = replace(a, stall_steps=a.stall_steps + 1)
+        self._set(approach=a)
+        if a.stall_steps > pc.approach_patience_steps:
+            self._reject(cl, robot_xy_m=robot_xy, why=f"no progress to the verify ring for {a.stall_steps} steps")
+            return None
+        return Decision(self._safe(plan, pose, field), Mode.VERIFY, "verify: approaching the potential candidate",
+                        plan=plan, target_kind="goal", candidate=cl)
 
     def _at_candidate(self, obs: Observation, cand: Candidate) -> Decision | None:
         """In the stop region: VERIFY (scan for a confirming re-match), face the goal, STOP."""
@@ -350,7 +460,7 @@ class ModIINAgent:
         verify = self._state.verify
         if verify is not None and not confirmed:
             if verify.scan_index >= len(SCAN_TURNS) or verify.scan_index >= pc.verify_scan_steps:
-                self._reject(cand, "no close-range re-identification")
+                self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why="no close-range re-identification")
                 return None
             self._set(verify=VerifyState(verify.scan_index + 1))
             return Decision(SCAN_TURNS[verify.scan_index], Mode.VERIFY, "scanning for a close-range match",

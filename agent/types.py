@@ -249,6 +249,24 @@ class MapSnapshot:
         return grid_ij_to_xy(ij, self.origin_xy_m, self.resolution_m)
 
 
+@dataclass(frozen=True, slots=True)
+class CandidateInfo:
+    """A goal candidate as the agent holds it (for the console and failure analysis).
+
+    state: ``potential`` (evidence below the detection threshold), ``confirmed`` (detected,
+    and verified when verification is on) or ``rejected`` (blacklisted on the map).
+    xy_m: centroid of its goal points, start-relative frame; n_views: frames that added points
+    to it; best_score: the highest re-ID score among them; distance_m: robot to the centroid now.
+    """
+
+    id: int
+    state: str
+    xy_m: tuple[float, float]
+    n_views: int
+    best_score: float
+    distance_m: float
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class AgentRecord:
     """A read-only account of one agent step: what it did and why.
@@ -263,6 +281,8 @@ class AgentRecord:
     goal_points_xyz: (M, 3) float32 goal points in the start-relative frame, metres.
     plan_xy_m: (K, 2) float32 planned path in the start-relative frame.
     timings_ms: per part (``mapping``, ``reid``, ``localisation``, ``planning``, ``total``).
+    candidates: every goal candidate the agent knows (``CandidateInfo``), rejected ones included.
+    candidate_id: the id of the candidate this step's decision is about (None: none).
     """
 
     step: int
@@ -284,6 +304,8 @@ class AgentRecord:
     map: MapSnapshot | None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
     planner_error: str | None = None
+    candidates: tuple[CandidateInfo, ...] = ()
+    candidate_id: int | None = None
 
 
 @runtime_checkable

@@ -114,3 +114,50 @@ def test_decision_is_frozen():
     except AttributeError:
         return
     raise AssertionError("Decision must be frozen")
+
+
+def test_candidates_are_in_the_record():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    steps = run_decisions(oracle_agent(world), world)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED
+    (info,) = [c for c in rec.candidates if c.id == rec.candidate_id]
+    assert info.state == "confirmed" and info.n_views >= 1 and info.best_score == 1.0
+    assert info.distance_m < 2.0 and rec.candidate_id == last.candidate.id
+
+
+def test_verify_by_approach_confirms_a_goal_first_seen_from_afar():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)  # sees the goal through the door, ~5 m away
+    agent = oracle_agent(world, verify=True, verify_by="approach", verify_range_m=2.5)
+    steps = run_decisions(agent, world, max_steps=300)
+    verify = [d for d, _ in steps if d.mode == Mode.VERIFY]
+    assert verify and verify[0].reason.startswith("verify:")
+    # potential while verifying, then confirmed
+    assert any(c.state == "potential" for _, r in steps for c in r.candidates)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert [c.state for c in rec.candidates if c.id == rec.candidate_id] == ["confirmed"]
+
+
+def test_verify_by_approach_rejects_what_only_matches_from_afar():
+    boxes, goal, decoy = two_rooms()
+    world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
+
+    def reid(obs):  # a false positive on the decoy from afar only; the true goal from anywhere
+        if np.count_nonzero(world._ids == decoy) >= 20 and world.pose.distance_to(Pose2D(-2.3, 1.5)) > 2.6:
+            return True
+        return world.goal_visible(obs)
+
+    def mask(obs):
+        m = world._ids == decoy
+        return m if m.any() and not world.goal_visible(obs) else world.goal_mask(obs)
+
+    agent = ModIINAgent(oracle_config(verify=True, verify_by="approach", verify_range_m=2.0, verify_views=4),
+                        oracle_reid=reid, oracle_ego_mask=mask)
+    steps = run_decisions(agent, world, max_steps=500)
+    last, rec = steps[-1]
+    assert any(c.state == "rejected" for c in rec.candidates)
+    assert any(d.reason.startswith("verify: look") for d, _ in steps)
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0

@@ -1,0 +1,81 @@
+"""Goal candidates as objects with evidence (the policy's candidate memory).
+
+A candidate is a cluster of goal points (``agent.localisation``) together with every view
+that added points to it: the step, its re-ID score, the distance from the robot to what it
+saw and the number of points (``localisation.View``). Its state follows from that evidence:
+
+* ``confirmed``: some view scored at or above tau (the paper's detection), and, when
+  verification is on, from within ``verify_range_m`` (a re-match at a distance where a match
+  is informative; see ``PolicyConfig``);
+* ``potential``: points, but no confirming view: only views below tau (when the policy
+  localises frames above a lower threshold, ``potential_tau_ratio``) or detections from afar;
+* ``rejected``: given up by the policy (verification failed, unreachable, no progress); its
+  cells are blacklisted on the map (``GridMap.blacklist_cells``) and it is kept here only
+  for the record.
+
+The console and the failure analysis see all of them (``agent.types.CandidateInfo``).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from agent.localisation import Candidate, GoalLocaliser, View
+from agent.types import CandidateInfo
+
+
+class CandidateState(str, enum.Enum):
+    POTENTIAL = "potential"
+    CONFIRMED = "confirmed"
+    REJECTED = "rejected"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GoalCandidate:
+    """A cluster with its evidence and state. ``cluster`` holds the points and cells."""
+
+    cluster: Candidate
+    state: CandidateState
+    views: tuple[View, ...]
+
+    @property
+    def id(self) -> int:
+        return self.cluster.id
+
+    @property
+    def best_score(self) -> float:
+        return max((v.score for v in self.views), default=0.0)
+
+    def best_score_within(self, distance_m: float) -> float:
+        return max((v.score for v in self.views if v.distance_m <= distance_m), default=0.0)
+
+
+def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float, verify_range_m: float | None) -> GoalCandidate:
+    """The candidate's state from its views. ``verify_range_m`` None: any detection confirms."""
+    views = tuple(v for v in (localiser.view(f) for f in cluster.frames) if v is not None)
+    confirming = [v for v in views if v.score >= tau and (verify_range_m is None or v.distance_m <= verify_range_m)]
+    state = CandidateState.CONFIRMED if confirming else CandidateState.POTENTIAL
+    return GoalCandidate(cluster, state, views)
+
+
+class CandidateMemory:
+    """Keeps the rejected candidates (for the record) and turns clusters into ``CandidateInfo``."""
+
+    def __init__(self) -> None:
+        self._rejected: dict[int, CandidateInfo] = {}
+
+    def reject(self, cand: GoalCandidate | Candidate, robot_xy_m: tuple[float, float]) -> None:
+        cl = cand.cluster if isinstance(cand, GoalCandidate) else cand
+        n_views = len(cand.views) if isinstance(cand, GoalCandidate) else cl.n_frames
+        best = cand.best_score if isinstance(cand, GoalCandidate) else cl.max_score
+        self._rejected[cl.id] = CandidateInfo(cl.id, CandidateState.REJECTED.value, cl.centroid_xy_m, n_views,
+                                              float(best), math.dist(cl.centroid_xy_m, robot_xy_m))
+
+    def infos(self, live: list[GoalCandidate], robot_xy_m: tuple[float, float]) -> tuple[CandidateInfo, ...]:
+        out = [CandidateInfo(c.id, c.state.value, c.cluster.centroid_xy_m, len(c.views), float(c.best_score),
+                             round(math.dist(c.cluster.centroid_xy_m, robot_xy_m), 3)) for c in live]
+        out += [CandidateInfo(r.id, r.state, r.xy_m, r.n_views, r.best_score, round(math.dist(r.xy_m, robot_xy_m), 3))
+                for k, r in self._rejected.items() if all(c.id != k for c in live)]
+        return tuple(out)
