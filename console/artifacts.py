@@ -25,6 +25,7 @@ import numpy as np
 from PIL import Image
 
 from console.pictures import render_map, video_frame
+from console.replay import ReplayRecorder
 from console.session import StepRecord
 from console.store import json_safe
 
@@ -62,7 +63,10 @@ def existing_artifacts(data_dir: Path, run_id: str) -> list[str]:
 class ArtifactWriter:
     """Collects a run's frames and writes its files. Used only by the worker thread."""
 
-    def __init__(self, directory: Path, max_frames: int = 300, frame_height_px: int = 240) -> None:
+    def __init__(
+        self, directory: Path, max_frames: int = 300, frame_height_px: int = 240, replay: ReplayRecorder | None = None
+    ) -> None:
+        self.replay = replay  # the run's replay rows in the store (console.replay), fed step by step
         self.dir = Path(directory)
         self.dir.mkdir(parents=True, exist_ok=True)
         self.max_frames = max_frames
@@ -80,6 +84,11 @@ class ArtifactWriter:
 
     def add_step(self, rec: StepRecord) -> None:
         self._last = rec
+        if self.replay is not None:
+            try:
+                self.replay.add(rec)
+            except Exception:  # the replay is a record of the run, never a reason to end it
+                logger.exception("replay: step %d of run %s not recorded", rec.step, self.replay.run_id)
         if rec.step % self._stride:
             return
         map_rgb, _ = self._map(rec, size_px=self.frame_height_px)
@@ -110,6 +119,8 @@ class ArtifactWriter:
     def finish(self, trajectory: Iterable[Mapping[str, Any]], summary: Mapping[str, Any]) -> list[str]:
         """Write trajectory.json, map.png and run.webp; returns the names written."""
         written = []
+        if self.replay is not None:
+            self.replay.finish()
         doc = {"summary": json_safe(dict(summary)), "steps": json_safe(list(trajectory))}
         (self.dir / "trajectory.json").write_text(json.dumps(doc, indent=1, allow_nan=False))
         written.append("trajectory.json")

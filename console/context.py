@@ -6,6 +6,7 @@ Data directory layout (everything the console writes is under it)::
     <data>/console.sqlite3        run records (console.store)
     <data>/runs/<run id>/         per-run artifacts (console.artifacts)
     <data>/sim/                   simulator homes' gallery cache (console.sim_provider)
+    <data>/calibration/<deployment>.json   tau from the operator's photos (console.calibration)
     <data>/console.lock           held by the console using this directory (console.datalock)
 """
 
@@ -16,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+from console.calibration import Calibrator
 from console.datalock import DataDirLock
 from console.events import EventHub
 from console.manager import RunManager
@@ -49,13 +51,18 @@ class ConsoleConfig:
 
 
 class Console:
-    def __init__(self, config: ConsoleConfig, providers: Mapping[str, BackendProvider]) -> None:
+    def __init__(
+        self, config: ConsoleConfig, providers: Mapping[str, BackendProvider], lock: DataDirLock | None = None
+    ) -> None:
+        """``lock``: the data directory's lock, already held by the caller (``imgnav console`` takes
+        it before anything else starts); None: taken here."""
         self.config = config
         self.data_dir = Path(config.data_dir).resolve()
         self.data_dir.mkdir(parents=True, exist_ok=True)
         # First of all: one console per data directory (raises DataDirLocked).
-        self.lock = DataDirLock(self.data_dir)
-        self.lock.acquire(config.host, config.port)
+        self.lock = lock if lock is not None else DataDirLock(self.data_dir)
+        if not self.lock.held:
+            self.lock.acquire(config.host, config.port)
         try:
             self.token: str | None = None
             if config.token_required():
@@ -71,6 +78,7 @@ class Console:
                     config.viewer, on_stop=self._stop_from_viewer, token=self.token, allowed_hosts=self.allowed_hosts
                 )
             self.manager = RunManager(self.store, self.hub, self.data_dir, self.providers, viewer=self.viewer)
+            self.calibrator = Calibrator(self.data_dir)
         except BaseException:
             self.lock.release()
             raise

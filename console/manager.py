@@ -41,6 +41,7 @@ from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
 from console.photos import GoalPhoto
+from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
 from console.store import RunStore, StepRow
 
@@ -108,7 +109,7 @@ class RunManager:
             if self._active is not None and self._active.thread.is_alive():
                 raise RunConflict(self._active.run_id)
             run_id = uuid.uuid4().hex[:12]
-            writer = ArtifactWriter(run_dir(self.data_dir, run_id))
+            writer = ArtifactWriter(run_dir(self.data_dir, run_id), replay=ReplayRecorder(self.store, run_id))
             writer.write_goal(goal.png_bytes(), upload, goal.extension)
             goal_info = {
                 "format": goal.source_format,

@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 
 from console.context import Console, ConsoleConfig
-from console.datalock import DataDirLocked
+from console.datalock import DataDirLock, DataDirLocked
 from console.security import WILDCARD_BINDS, interface_addresses
 from console.viewer import ViewerConfig
 
@@ -74,30 +74,39 @@ def run(args: argparse.Namespace) -> int:
         viewer=viewer,
         allowed_hosts=tuple(getattr(args, "allowed_host", None) or ()),
     )
-    providers = build_providers(args, Path(args.data_dir).resolve())
+    # The data directory's lock first: a second console stops here, before it touches anything.
+    lock = DataDirLock(Path(args.data_dir).resolve())
     try:
-        console = Console(config, providers)
+        lock.acquire(args.host, args.port)
     except DataDirLocked as exc:
         logger.error("%s", exc)
         return 1
-    app = create_app(console)
-    for provider in providers.values():
-        prepare = getattr(provider, "prepare_async", None)
-        if prepare is not None:
-            prepare(console.hub)
-    warm_up_async("sim")  # load the matcher while the operator takes the photo
 
-    for url in console_urls(args.host, args.port, console.token):
-        logger.info("console: %s   (phone page /phone, console /console, API docs /docs)", url)
-    logger.info("accepted host names: %s", ", ".join(console.allowed_hosts))
-    if console.token:
-        logger.warning("this console is reachable from the network; its token is %s", console.token)
-    if console.viewer is not None:
-        logger.info("live 3D viewer on port %d", console.viewer.port)
-    if console.interrupted_on_start:
-        logger.warning("runs interrupted by the last shutdown: %s", ", ".join(console.interrupted_on_start))
+    def build() -> Console:
+        providers = build_providers(args, Path(args.data_dir).resolve())
+        return Console(config, providers, lock=lock)
+
+    def ready(console: Console) -> None:
+        for provider in console.providers.values():
+            prepare = getattr(provider, "prepare_async", None)
+            if prepare is not None:
+                prepare(console.hub)
+        warm_up_async("sim")  # load the matcher while the operator takes the photo
+        for url in console_urls(args.host, args.port, console.token):
+            logger.info("console: %s   (phone page /phone, console /console, API docs /docs)", url)
+        logger.info("accepted host names: %s", ", ".join(console.allowed_hosts))
+        if console.token:
+            logger.warning("this console is reachable from the network; its token is %s", console.token)
+        if console.viewer is not None:
+            logger.info("live 3D viewer on port %d", console.viewer.port)
+        if console.interrupted_on_start:
+            logger.warning("runs interrupted by the last shutdown: %s", ", ".join(console.interrupted_on_start))
+
+    app = create_app(build=build, config=config, on_ready=ready)
     try:
         uvicorn.run(app, host=args.host, port=args.port, log_level="info", timeout_graceful_shutdown=5)
+    except SystemExit as exc:  # uvicorn exits when start-up fails (a port in use, ...)
+        return int(exc.code) if isinstance(exc.code, int) else 1
     finally:
-        console.close()  # idempotent; the app's shutdown already did this unless uvicorn failed to start
+        lock.release()  # the console's close released it already unless start-up failed
     return 0

@@ -15,6 +15,7 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 
 from agent.types import Action, Agent, AgentRecord, Backend, Intrinsics, Pose2D
+from console.options import RunForm, RunOptions
 
 
 class OptionsError(ValueError):
@@ -29,16 +30,24 @@ class ProviderUnavailable(RuntimeError):
 class ResolvedRun:
     """A run's options after validation.
 
-    options: JSON-able, stored with the run (home, start, episode, max_steps, ...).
+    spec:    the backend's typed, frozen options (``console.options``), parsed once from the form.
     target:  what is known about the goal instance (JSON-able) or None when unknown;
              a known target means the run is scored.
-    max_steps: the step budget (DESIGN: 1000).
     """
 
     backend: str
-    options: Mapping[str, Any]
+    spec: RunOptions
     target: Mapping[str, Any] | None
-    max_steps: int
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The options serialised (stored with the run, shown by the API)."""
+        return self.spec.to_json()
+
+    @property
+    def max_steps(self) -> int:
+        """The step budget (DESIGN: 1000)."""
+        return int(self.spec.max_steps)
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,7 +88,9 @@ class BackendProvider(Protocol):
         """JSON for the pages: homes, episodes, starts, gallery... whatever the choice offers."""
         ...
 
-    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun: ...
+    def resolve(self, form: RunForm, goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        """Check the form in the request (``OptionsError`` -> 422) and parse it into typed options."""
+        ...
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession: ...
 

@@ -22,6 +22,7 @@ from agent.types import Action, Agent, Pose2D
 from console.agents import build_agent
 from console.photos import dhash
 from console.session import Outcome
+from console.sim_catalog import GalleryItem, HomeEntry, Start
 
 logger = logging.getLogger(__name__)
 
@@ -126,9 +127,8 @@ def build_home_entry(
     views_per_instance: int,
     n_starts: int,
     progress: Callable[[str], None],
-) -> Any:
+) -> HomeEntry:
     """Build one home's catalog entry and write its gallery PNGs into ``out_dir``."""
-    from console.sim_provider import GalleryItem, HomeEntry, Start
     from sim.goals import sample_goal_images
 
     out_dir.mkdir(parents=True, exist_ok=True)

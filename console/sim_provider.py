@@ -23,15 +23,17 @@ import math
 import re
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
 from agent.types import MAX_STEPS
+from console.options import RunForm, SimRunOptions
 from console.photos import hamming
 from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession
+from console.sim_catalog import GalleryItem, HomeEntry, Start
 
 logger = logging.getLogger(__name__)
 
@@ -39,45 +41,6 @@ DHASH_MAX_BITS = 6  # of 64: re-encodings and resizes stay within ~4 bits, other
 CATALOG_VERSION = 1
 _ITEM = re.compile(r"^(home-\d+)/(i\d+-v\d+)$")
 _FILE = re.compile(r"^i\d+-v\d+\.png$")
-
-
-@dataclass(frozen=True, slots=True)
-class Start:
-    id: str
-    label: str
-    pose_world: tuple[float, float, float]  # x_m, y_m, yaw_rad in the home frame
-
-
-@dataclass(frozen=True, slots=True)
-class GalleryItem:
-    item: str  # "home-<seed>/i<instance>-v<view>"
-    instance_id: int
-    category: str
-    room: str
-    label: str
-    file: str
-    dhash: str  # 16 hex digits
-
-
-@dataclass(frozen=True, slots=True)
-class HomeEntry:
-    id: str
-    seed: int
-    label: str
-    rooms: int
-    starts: tuple[Start, ...]
-    gallery: tuple[GalleryItem, ...]
-
-    @staticmethod
-    def from_json(d: Mapping[str, Any]) -> "HomeEntry":
-        return HomeEntry(
-            id=d["id"],
-            seed=int(d["seed"]),
-            label=d["label"],
-            rooms=int(d["rooms"]),
-            starts=tuple(Start(s["id"], s["label"], tuple(s["pose_world"])) for s in d["starts"]),
-            gallery=tuple(GalleryItem(**g) for g in d["gallery"]),
-        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,7 +145,7 @@ class SimProvider:
                     progress=lambda msg: self._log(hub, f"{home_id}: {msg}"),
                 )
                 homes.append(entry)
-            doc = {"key": self._cache_key(), "homes": [_entry_json(h) for h in homes]}
+            doc = {"key": self._cache_key(), "homes": [h.to_json() for h in homes]}
             self.dir.mkdir(parents=True, exist_ok=True)
             tmp = self._cache_path().with_suffix(".tmp")
             tmp.write_text(json.dumps(doc, indent=1))
@@ -275,20 +238,17 @@ class SimProvider:
         path = self.dir / home.id / filename
         return path if path.is_file() else None
 
-    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+    def resolve(self, form: RunForm, goal_dhash: int, goal_sha256: str) -> ResolvedRun:
         homes = self.homes
         if not homes:
             raise ProviderUnavailable("the simulator has no homes prepared yet")
-        unknown = set(options) - {"home", "start", "gallery_item", "target_instance", "max_steps", "episode"}
-        if unknown:
-            raise OptionsError(f"unknown simulator options: {sorted(unknown)}")
-        if "episode" in options:
-            return self._resolve_episode(options, goal_dhash)
-        home_id = options.get("home") or next(iter(homes))
+        if form.episode is not None:
+            return self._resolve_episode(form)
+        home_id = form.home or next(iter(homes))
         home = homes.get(home_id)
         if home is None:
             raise OptionsError(f"no home {home_id!r}; homes are {sorted(homes)}")
-        start = _parse_start(home, options.get("start"))
+        start = _parse_start(home, form.start)
         if start.id == "custom":
             from console import sim_adapter
 
@@ -298,19 +258,18 @@ class SimProvider:
                     f"start ({x:.2f}, {y:.2f}) is not a free position in {home.id}: the robot (radius 0.17 m) "
                     "would overlap a wall or furniture there, or it is outside the home"
                 )
-        max_steps = _parse_max_steps(options.get("max_steps"))
+        max_steps = _check_max_steps(form.max_steps)
 
         target: dict[str, Any] | None = None
-        item = options.get("gallery_item")
-        if item:
-            m = _ITEM.match(item)
-            found = next((g for g in home.gallery if g.item == item), None) if m else None
+        if form.gallery_item:
+            m = _ITEM.match(form.gallery_item)
+            found = next((g for g in home.gallery if g.item == form.gallery_item), None) if m else None
             if found is None:
-                raise OptionsError(f"no gallery image {item!r} in {home.id}")
+                raise OptionsError(f"no gallery image {form.gallery_item!r} in {home.id}")
             target = _target(found, "gallery_item")
-        elif options.get("target_instance") is not None:
+        elif form.target_instance is not None:
             try:
-                iid = int(options["target_instance"])
+                iid = int(form.target_instance)
             except ValueError:
                 raise OptionsError("target_instance must be an integer instance id") from None
             found = next((g for g in home.gallery if g.instance_id == iid), None)
@@ -323,35 +282,30 @@ class SimProvider:
                 dist = hamming(int(best.dhash, 16), goal_dhash)
                 if dist <= DHASH_MAX_BITS:
                     target = _target(best, f"perceptual hash ({dist} of 64 bits differ)")
-        resolved_options = {
-            "home": home.id,
-            "home_seed": home.seed,
-            "start": start.id,
-            "start_pose_world": list(start.pose_world),
-            "max_steps": max_steps,
-        }
-        return ResolvedRun("sim", resolved_options, target, max_steps)
+        spec = SimRunOptions(
+            home=home.id, home_seed=home.seed, start=start.id, start_pose_world=start.pose_world, max_steps=max_steps
+        )
+        return ResolvedRun("sim", spec, target)
 
-    def _resolve_episode(self, options: Mapping[str, str], goal_dhash: int) -> ResolvedRun:
+    def _resolve_episode(self, form: RunForm) -> ResolvedRun:
         """An episode fixes the home, the start and the target; the photo is the goal image
         (the episode's own, or any other picture of the same instance)."""
         if self._episodes is None:
             raise OptionsError("no episode set is loaded (start the console with --episodes DIR)")
-        extra = set(options) - {"episode", "max_steps"}
+        extra = form.given() - {"episode", "max_steps"}
         if extra:
             raise OptionsError(f"an episode fixes home, start and target; drop {sorted(extra)}")
         try:
-            e = self._episodes.by_id(options["episode"])
+            e = self._episodes.by_id(form.episode)
         except KeyError:
-            raise OptionsError(f"no episode {options['episode']!r}") from None
-        max_steps = _parse_max_steps(options.get("max_steps"))
-        resolved_options = {
-            "episode": e.episode_id,
-            "episodes_dir": str(self.config.episodes_dir),
-            "home_seed": e.scene_seed,
-            "start_pose_world": list(e.start_pose_world.as_tuple()),
-            "max_steps": max_steps,
-        }
+            raise OptionsError(f"no episode {form.episode!r}") from None
+        spec = SimRunOptions(
+            episode=e.episode_id,
+            episodes_dir=str(self.config.episodes_dir),
+            home_seed=e.scene_seed,
+            start_pose_world=tuple(e.start_pose_world.as_tuple()),
+            max_steps=_check_max_steps(form.max_steps),
+        )
         target = {
             "instance_id": e.goal_instance_id,
             "category": e.goal_category,
@@ -359,27 +313,28 @@ class SimProvider:
             "geodesic_distance_m": e.geodesic_distance_m,
             "identified_by": "episode",
         }
-        return ResolvedRun("sim", resolved_options, target, max_steps)
+        return ResolvedRun("sim", spec, target)
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         from console import sim_adapter
 
-        opts = resolved.options
-        if "episode" in opts:
+        spec = resolved.spec
+        assert isinstance(spec, SimRunOptions), spec
+        if spec.episode is not None:
             return sim_adapter.open_episode_session(
-                episode=self._episodes.by_id(opts["episode"]),
+                episode=self._episodes.by_id(spec.episode),
                 goal_rgb=goal_rgb,
-                max_steps=resolved.max_steps,
+                max_steps=spec.max_steps,
                 agent_config_path=self.config.agent_config_path,
             )
         target = resolved.target
         return sim_adapter.open_session(
-            home_seed=int(opts["home_seed"]),
+            home_seed=spec.home_seed,
             n_rooms=self.config.n_rooms,
-            start_pose_world=tuple(opts["start_pose_world"]),
+            start_pose_world=spec.start_pose_world,
             goal_rgb=goal_rgb,
             target_instance_id=None if target is None else int(target["instance_id"]),
-            max_steps=resolved.max_steps,
+            max_steps=spec.max_steps,
             agent_config_path=self.config.agent_config_path,
         )
 
@@ -419,24 +374,9 @@ def _parse_start(home: HomeEntry, text: str | None) -> Start:
     raise OptionsError(f"no start {text!r} in {home.id}; starts are {[s.id for s in home.starts]}, 'random' or 'x,y,yaw_deg'")
 
 
-def _parse_max_steps(text: str | None) -> int:
-    if text is None:
+def _check_max_steps(n: int | None) -> int:
+    if n is None:
         return MAX_STEPS
-    try:
-        n = int(text)
-    except ValueError:
-        raise OptionsError("max_steps must be an integer") from None
     if not 1 <= n <= MAX_STEPS:
         raise OptionsError(f"max_steps must be between 1 and {MAX_STEPS}")
     return n
-
-
-def _entry_json(h: HomeEntry) -> dict[str, Any]:
-    return {
-        "id": h.id,
-        "seed": h.seed,
-        "label": h.label,
-        "rooms": h.rooms,
-        "starts": [asdict(s) for s in h.starts],
-        "gallery": [asdict(g) for g in h.gallery],
-    }

@@ -6,6 +6,8 @@ runs   one row per run: goal photo (path + hashes), backend and options, agent
        configuration, status, outcome, metrics and timings (JSON columns).
 steps  one row per agent step: action, pose, mode, reason, re-ID score and tau,
        target, per-part timings.
+replay_steps, replay_maps   what a replay needs (console.replay): a JPEG thumbnail and a
+       small JSON per step, the agent's map every few steps.
 
 Everything is written through one connection guarded by a lock (the worker
 thread writes steps while request handlers read). WAL mode lets readers go on
@@ -26,7 +28,7 @@ from typing import Any, Iterable, Mapping
 
 logger = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: replay tables (older files gain them on open)
 
 # Run status values. ``pending``/``running`` are active; the rest are final.
 ACTIVE_STATUSES = ("pending", "running", "stopping")
@@ -72,6 +74,19 @@ CREATE TABLE IF NOT EXISTS steps (
     target_kind     TEXT,
     planner_error   TEXT,
     timings_json    TEXT NOT NULL,
+    PRIMARY KEY (run_id, step)
+);
+CREATE TABLE IF NOT EXISTS replay_steps (
+    run_id          TEXT NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
+    step            INTEGER NOT NULL,
+    frame_jpeg      BLOB NOT NULL,
+    extras_json     TEXT NOT NULL,
+    PRIMARY KEY (run_id, step)
+);
+CREATE TABLE IF NOT EXISTS replay_maps (
+    run_id          TEXT NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
+    step            INTEGER NOT NULL,
+    map_blob        BLOB NOT NULL,
     PRIMARY KEY (run_id, step)
 );
 """
@@ -199,10 +214,29 @@ class RunStore:
             row = self._db.execute("SELECT * FROM runs WHERE id=?", (run_id,)).fetchone()
         return _run_dict(row) if row is not None else None
 
-    def list_runs(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
+    def list_runs(
+        self,
+        limit: int = 100,
+        offset: int = 0,
+        *,
+        outcome: str | None = None,
+        status: str | None = None,
+        backend: str | None = None,
+        home: str | None = None,
+    ) -> list[dict[str, Any]]:
+        """Newest first; each filter given must match exactly (``home``: the options' home id)."""
+        where, values = [], []
+        for column, value in (("outcome", outcome), ("status", status), ("backend", backend)):
+            if value is not None:
+                where.append(f"{column}=?")
+                values.append(value)
+        if home is not None:
+            where.append("json_extract(options_json, '$.home')=?")
+            values.append(home)
+        clause = f"WHERE {' AND '.join(where)} " if where else ""
         with self._lock:
             rows = self._db.execute(
-                "SELECT * FROM runs ORDER BY created_s DESC LIMIT ? OFFSET ?", (int(limit), int(offset))
+                f"SELECT * FROM runs {clause}ORDER BY created_s DESC LIMIT ? OFFSET ?", (*values, int(limit), int(offset))
             ).fetchall()
         return [_run_dict(r) for r in rows]
 
@@ -234,6 +268,59 @@ class RunStore:
                 ),
             )
             self._db.execute("UPDATE runs SET n_steps=? WHERE id=?", (row.step + 1, run_id))
+
+    # --- replay (console.replay) ---------------------------------------------------
+
+    def add_replay_step(self, run_id: str, step: int, frame_jpeg: bytes, extras_json: str) -> None:
+        with self._lock:
+            self._db.execute(
+                "INSERT OR REPLACE INTO replay_steps VALUES (?,?,?,?)", (run_id, int(step), frame_jpeg, extras_json)
+            )
+
+    def add_replay_map(self, run_id: str, step: int, map_blob: bytes) -> None:
+        with self._lock:
+            self._db.execute("INSERT OR REPLACE INTO replay_maps VALUES (?,?,?)", (run_id, int(step), map_blob))
+
+    def replay_frame(self, run_id: str, step: int) -> bytes | None:
+        with self._lock:
+            row = self._db.execute(
+                "SELECT frame_jpeg FROM replay_steps WHERE run_id=? AND step=?", (run_id, int(step))
+            ).fetchone()
+        return None if row is None else bytes(row["frame_jpeg"])
+
+    def replay_extras(self, run_id: str) -> dict[int, dict[str, Any]]:
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT step, extras_json FROM replay_steps WHERE run_id=? ORDER BY step", (run_id,)
+            ).fetchall()
+        return {int(r["step"]): json.loads(r["extras_json"]) for r in rows}
+
+    def replay_map_at(self, run_id: str, step: int) -> tuple[int, bytes] | None:
+        """The latest map snapshot at or before ``step``."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT step, map_blob FROM replay_maps WHERE run_id=? AND step<=? ORDER BY step DESC LIMIT 1",
+                (run_id, int(step)),
+            ).fetchone()
+        return None if row is None else (int(row["step"]), bytes(row["map_blob"]))
+
+    def replay_map_steps(self, run_id: str) -> list[int]:
+        with self._lock:
+            rows = self._db.execute("SELECT step FROM replay_maps WHERE run_id=? ORDER BY step", (run_id,)).fetchall()
+        return [int(r["step"]) for r in rows]
+
+    def replay_bytes(self, run_id: str) -> dict[str, int]:
+        """Stored replay sizes: frames, per-step JSON, maps (bytes)."""
+        with self._lock:
+            a = self._db.execute(
+                "SELECT COALESCE(SUM(LENGTH(frame_jpeg)),0) f, COALESCE(SUM(LENGTH(extras_json)),0) e, COUNT(*) n "
+                "FROM replay_steps WHERE run_id=?",
+                (run_id,),
+            ).fetchone()
+            b = self._db.execute(
+                "SELECT COALESCE(SUM(LENGTH(map_blob)),0) m, COUNT(*) n FROM replay_maps WHERE run_id=?", (run_id,)
+            ).fetchone()
+        return {"frames": int(a["f"]), "extras": int(a["e"]), "steps": int(a["n"]), "maps": int(b["m"]), "n_maps": int(b["n"])}
 
     def steps(self, run_id: str) -> list[StepRow]:
         with self._lock:

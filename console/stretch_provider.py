@@ -15,6 +15,7 @@ import numpy as np
 
 from agent.types import MAX_STEPS, Action, Agent, Backend
 from console.agents import build_agent
+from console.options import RunForm, StretchRunOptions
 from console.session import OptionsError, Outcome, ResolvedRun, RunSession
 
 logger = logging.getLogger(__name__)
@@ -55,19 +56,14 @@ class StretchProvider:
     def describe(self) -> Mapping[str, Any]:
         return {"host": self.host}
 
-    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
-        unknown = set(options) - {"max_steps"}
+    def resolve(self, form: RunForm, goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        unknown = form.given() - {"max_steps"}
         if unknown:
             raise OptionsError(f"options {sorted(unknown)} do not apply to the Stretch")
-        max_steps = MAX_STEPS
-        if "max_steps" in options:
-            try:
-                max_steps = int(options["max_steps"])
-            except ValueError:
-                raise OptionsError("max_steps must be an integer") from None
-            if not 1 <= max_steps <= MAX_STEPS:
-                raise OptionsError(f"max_steps must be between 1 and {MAX_STEPS}")
-        return ResolvedRun("stretch", {"host": self.host, "max_steps": max_steps}, None, max_steps)
+        max_steps = MAX_STEPS if form.max_steps is None else form.max_steps
+        if not 1 <= max_steps <= MAX_STEPS:
+            raise OptionsError(f"max_steps must be between 1 and {MAX_STEPS}")
+        return ResolvedRun("stretch", StretchRunOptions(self.host, max_steps), None)
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         import dataclasses

@@ -39,6 +39,7 @@ import numpy as np
 
 from console.pictures import depth_rgb, fit_height, layers_rgb, match_picture
 from console.security import LOOPBACK_NAMES, host_allowed, origin_allowed
+from agent.types import Pose2D
 from console.session import Outcome, StepRecord
 
 logger = logging.getLogger(__name__)
@@ -142,6 +143,9 @@ class Viewer:
         self._handles_lock = threading.RLock()
         self._controls: dict[int, _ClientControls] = {}
         self._run_active = False
+        self._replay: dict[str, Any] | None = None  # the finished run shown step by step, if any
+        self._replay_folder: Any = None
+        self.replay_step: int | None = None
         self._latest: StepRecord | None = None
         self._pending_map = False
         self._closed = False
@@ -149,6 +153,7 @@ class Viewer:
         self._last_pose_s = 0.0
         self._last_map_s = 0.0
         self.n_published = 0
+        self.last_published_step: int | None = None
         self._build_scene()
         self._build_gui()
         self.server.on_client_connect(self._client_connected)
@@ -269,10 +274,8 @@ class Viewer:
             self._status.content = f"**Run {run_id}** - starting ({info.get('backend', '')})"
             self._goal_img.image = fit_height(goal_rgb, self.config.image_height_px)
             self._set_stop_enabled(True)
-            for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
-                if handle is not None:
-                    handle.remove()
-            self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
+            self._end_replay()
+            self._clear_scene()
 
     def offer(self, rec: StepRecord) -> None:
         with self._wake:
@@ -294,6 +297,101 @@ class Viewer:
             self._status.content = f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
             self._set_stop_enabled(False)
 
+    # --- replay of a finished run (console.replay) ------------------------------------------
+
+    def show_replay(
+        self,
+        store: Any,
+        row: Mapping[str, Any],
+        steps: list[dict[str, Any]],
+        extras: Mapping[int, Mapping[str, Any]],
+        step: int,
+    ) -> None:
+        """Show one step of a finished run: the pose, the trajectory so far, plan, target, goal
+        points, the map as the agent knew it then and its camera thumbnail; a "Replay" slider
+        (and jumps) in the side panel moves through the run's steps."""
+        run_id = row["id"]
+        with self._handles_lock:
+            if self._replay is None or self._replay["run_id"] != run_id:
+                self._clear_scene()
+                self._goal_img.image = fit_height(_goal_picture(store, run_id), self.config.image_height_px)
+                self._build_replay_gui(store, row, steps, extras)
+            slider = self._replay["slider"]
+            if int(slider.value) != step + 1:
+                slider.value = step + 1  # its callback shows the step
+            else:
+                self._replay_step(step)
+
+    def _build_replay_gui(self, store: Any, row: Mapping[str, Any], steps: list[dict[str, Any]], extras: Mapping[int, Any]) -> None:
+        from console.replay import replay_marks
+
+        if self._replay_folder is not None:
+            self._replay_folder.remove()
+        marks = replay_marks(steps, dict(extras))
+        gui = self.server.gui
+        self._replay = {"run_id": row["id"], "store": store, "steps": steps, "extras": extras, "marks": marks, "row": row}
+        self._replay_folder = gui.add_folder(f"Replay of run {row['id']}", order=5.0)
+        with self._replay_folder:
+            slider = gui.add_slider("Step", min=1, max=max(1, len(steps)), step=1, initial_value=1)
+            slider.on_update(lambda _e: self._replay_step(int(slider.value) - 1))
+            jumps = [("First detection", marks["first_detection"]), ("Stop", marks["stop"] if marks["stop"] is not None else marks["last"])]
+            for label, target in jumps:
+                button = gui.add_button(label, disabled=target is None)
+                if target is not None:
+                    button.on_click(lambda _e, t=target: setattr(slider, "value", int(t) + 1))
+        self._replay["slider"] = slider
+
+    def _replay_step(self, step: int) -> None:
+        from agent.types import CAMERA_HEIGHT_M, SIM_INTRINSICS, Action, AgentRecord
+        from console.replay import decode_map
+        from console.words import step_words
+
+        rp = self._replay
+        if rp is None:
+            return
+        steps = rp["steps"]
+        step = max(0, min(step, len(steps) - 1))
+        me = steps[step]
+        ex = rp["extras"].get(me["step"], {})
+        found = rp["store"].replay_map_at(rp["run_id"], me["step"])
+        snapshot = decode_map(found[1]) if found is not None else None
+        jpeg = rp["store"].replay_frame(rp["run_id"], me["step"])
+        rgb = np.asarray(_jpeg_rgb(jpeg)) if jpeg is not None else np.full((64, 36, 3), 200, np.uint8)
+        pose = Pose2D(me["x_m"], me["y_m"], me["yaw_rad"] or 0.0)
+        record = AgentRecord(
+            step=me["step"], action=Action(me["action"]), pose=pose, mode=me["mode"], reason=me["reason"],
+            reid_score=me["reid_score"], reid_tau=me["reid_tau"], goal_detected=bool(me["goal_detected"]),
+            goal_points_xyz=np.asarray(ex.get("goal_points") or np.zeros((0, 3)), np.float32).reshape(-1, 3),
+            target_xy_m=None if ex.get("target") is None else (float(ex["target"][0]), float(ex["target"][1])),
+            target_kind=ex.get("target_kind"),
+            plan_xy_m=np.asarray(ex.get("plan") or np.zeros((0, 2)), np.float32).reshape(-1, 2),
+            map=snapshot,
+        )
+        upto = steps[: step + 1]
+        rec = StepRecord(
+            run_id=rp["run_id"], step=me["step"], t_s=me["t_s"], action=Action(me["action"]), pose=pose, rgb=rgb,
+            depth_m=np.zeros(rgb.shape[:2], np.float32), intrinsics=SIM_INTRINSICS, camera_height_m=CAMERA_HEIGHT_M,
+            camera_tilt_rad=0.0, goal_rgb=np.zeros((8, 8, 3), np.uint8), record=record,
+            trajectory_xy_m=np.array([[s["x_m"], s["y_m"]] for s in upto], np.float64),
+            reid_history=tuple((s["step"], s["reid_score"], s["reid_tau"]) for s in upto),
+        )
+        with self._handles_lock:
+            self._publish_locked(rec, with_map=True, replay=True)
+            self._status.content = f"**Replay of run {rp['run_id']}** - {step_words(me)}"
+        self.replay_step = me["step"]
+
+    def _clear_scene(self) -> None:
+        for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
+            if handle is not None:
+                handle.remove()
+        self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
+
+    def _end_replay(self) -> None:
+        if self._replay_folder is not None:
+            self._replay_folder.remove()
+        self._replay_folder = None
+        self._replay = None
+
     def close(self) -> None:
         with self._wake:
             self._closed = True
@@ -312,11 +410,15 @@ class Viewer:
                     self._wake.wait()
                 if self._closed:
                     return
-                wait_s = self._last_pose_s + pose_period - time.monotonic()
-                if wait_s > 0:
-                    self._wake.wait(wait_s)  # throttle: newer records replace this one meanwhile
-                    if self._closed:
-                        return
+                # Throttle: wait out the pose period. An offer notifies the condition, so the wait
+                # repeats until the deadline; newer records replace the pending one meanwhile.
+                while True:
+                    wait_s = self._last_pose_s + pose_period - time.monotonic()
+                    if wait_s <= 0 or self._closed:
+                        break
+                    self._wake.wait(wait_s)
+                if self._closed:
+                    return
                 rec = self._latest
                 self._latest = None
                 if rec is None:
@@ -333,8 +435,9 @@ class Viewer:
         with self._handles_lock:
             self._publish_locked(rec, with_map)
         self.n_published += 1
+        self.last_published_step = rec.step
 
-    def _publish_locked(self, rec: StepRecord, with_map: bool) -> None:
+    def _publish_locked(self, rec: StepRecord, with_map: bool, replay: bool = False) -> None:
         now = time.monotonic()
         self._last_pose_s = now
         r = rec.record
@@ -365,7 +468,7 @@ class Viewer:
                     self._target.visible = True
             elif self._target is not None:
                 self._target.visible = False
-            self._publish_images(rec)
+            self._publish_images(rec, replay=replay)
             if with_map:
                 self._publish_map(rec)
 
@@ -386,12 +489,13 @@ class Viewer:
         tau = "" if r is None or r.reid_tau is None else f" / tau {r.reid_tau:.1f}"
         self._status.content = f"**Run {rec.run_id}** - step {rec.step} {rec.action.name}{mode}{score}{tau}"
 
-    def _publish_images(self, rec: StepRecord) -> None:
+    def _publish_images(self, rec: StepRecord, replay: bool = False) -> None:
         h = self.config.image_height_px
         self._rgb_img.image = fit_height(rec.rgb, h)
-        self._depth_img.image = fit_height(depth_rgb(rec.depth_m), h)
+        if not replay:  # a replay keeps the camera thumbnail only (no depth, no matches)
+            self._depth_img.image = fit_height(depth_rgb(rec.depth_m), h)
         r = rec.record
-        if r is not None:
+        if r is not None and not replay:
             self._match_img.image = match_picture(rec.goal_rgb, rec.rgb, r.matches_goal_xy, r.matches_obs_xy, height_px=h)
         hist = rec.reid_history
         if hist:
@@ -448,3 +552,23 @@ class Viewer:
             else:
                 self._obstacles.points = pts
                 self._obstacles.colors = colours
+
+
+def _jpeg_rgb(jpeg: bytes) -> np.ndarray:
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(jpeg)).convert("RGB"))
+
+
+def _goal_picture(store: Any, run_id: str) -> np.ndarray:
+    """The run's goal photo (runs/<id>/goal.png next to the store), grey if missing."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    path = Path(store.db_path).parent / "runs" / run_id / "goal.png"
+    if path.is_file():
+        return np.asarray(Image.open(path).convert("RGB"))
+    return np.full((64, 64, 3), 200, np.uint8)

@@ -18,11 +18,22 @@ from agent.types import (
     Action,
     AgentRecord,
     BackendError,
+    CandidateInfo,
     MapSnapshot,
     Observation,
     Pose2D,
 )
+from console.options import RunForm
 from console.session import Outcome, OptionsError, ResolvedRun
+
+
+@dataclass(frozen=True, slots=True)
+class ScriptedOptions:
+    max_steps: int = 1000
+    home: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: v for k, v in {"max_steps": self.max_steps, "home": self.home}.items() if v is not None}
 
 
 def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float = 30.0, what: str = "condition") -> Any:
@@ -120,6 +131,11 @@ class ScriptedAgent:
             matches_goal_xy=np.array([[5, 5], [20, 20]], np.float32), matches_obs_xy=np.array([[50, 60], [100, 200]], np.float32),
             goal_points_xyz=np.array([[0.3, 0.2, 0.5]], np.float32), target_xy_m=(0.2, 0.2), target_kind="frontier",
             plan_xy_m=np.array([[0, 0], [0.1, 0.1], [0.2, 0.2]], np.float32), timings_ms={"total": 1.0},
+            # a candidate appears (detected) at action 3 and is rejected at action 6
+            goal_detected=self.n >= 3,
+            candidates=() if self.n < 3 else (
+                CandidateInfo(1, "rejected" if self.n >= 6 else "confirmed", (0.3, 0.2), self.n - 2, 12.5, 0.4),
+            ),
         )
         self.n += 1
         return action
@@ -162,11 +178,12 @@ class ScriptedProvider:
     def describe(self) -> Mapping[str, Any]:
         return {}
 
-    def resolve(self, options: Mapping[str, str], goal_dhash: int, goal_sha256: str) -> ResolvedRun:
-        if "home" in options and options["home"] != "h0":
-            raise OptionsError(f"no home {options['home']!r}")
-        max_steps = int(options.get("max_steps", 1000))
-        return ResolvedRun("scripted", dict(options), None, max_steps)
+    def resolve(self, form: RunForm, goal_dhash: int, goal_sha256: str) -> ResolvedRun:
+        if form.home is not None and form.home != "h0":
+            raise OptionsError(f"no home {form.home!r}")
+        if form.max_steps is not None and not 1 <= form.max_steps <= 1000:
+            raise OptionsError("max_steps must be between 1 and 1000")
+        return ResolvedRun("scripted", ScriptedOptions(form.max_steps or 1000, form.home), None)
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> ScriptedSession:
         session = ScriptedSession(ScriptedBackend(goal_rgb, self.fail_at, self.gate), ScriptedAgent(self.stop_after))

@@ -11,7 +11,7 @@ import pytest
 from agent.types import Action, Pose2D
 from console.session import Outcome, StepRecord
 from console.viewer import Viewer, ViewerConfig, camera_rotation, rotation_to_wxyz
-from console_testkit import ScriptedAgent, ScriptedBackend, textured_rgb
+from console_testkit import ScriptedAgent, ScriptedBackend, poll, textured_rgb
 
 
 def test_camera_rotation_opencv_axes() -> None:
@@ -53,7 +53,8 @@ def records(n: int) -> list[StepRecord]:
 
 
 def test_viewer_publishes_and_throttles() -> None:
-    viewer = Viewer(ViewerConfig(port=0, pose_hz=5.0, map_hz=1.0))
+    """Twelve offers inside one pose period publish once, the newest; nothing is lost at the end."""
+    viewer = Viewer(ViewerConfig(port=0, pose_hz=0.5, map_hz=1.0))  # a 2 s pose period
     try:
         assert viewer.port > 0
         recs = records(12)
@@ -62,8 +63,13 @@ def test_viewer_publishes_and_throttles() -> None:
         assert viewer.n_published == 1
         for rec in recs:  # offers return at once; the viewer thread keeps only the newest
             viewer.offer(rec)
+        poll(lambda: viewer.n_published, lambda n: n >= 2, 10, "the throttled publish")
+        assert viewer.n_published == 2 and viewer.last_published_step == 11
         viewer.run_ended("abcdefabcdef", "finished", Outcome("unscored", "test", {"spl": 0.5}))
-        assert 2 <= viewer.n_published <= 1 + len(recs)
+        assert viewer.n_published == 2  # the newest was already shown: nothing republished
+        viewer.offer(recs[5])
+        viewer.run_ended("abcdefabcdef", "finished", Outcome("unscored", "test", {"spl": 0.5}))
+        assert viewer.n_published == 3 and viewer.last_published_step == 5  # a pending one is shown at the end
     finally:
         viewer.close()
 

@@ -1,0 +1,84 @@
+"""Calibrating a deployment's tau from the operator's own photos (``console.calibration``)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, File, Form, Path, Request, UploadFile
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+
+from console.calibration import DEPLOYMENTS, CalibrationInputError, LabelledPhoto, tau_in_force
+from console.context import Console
+from console.deps import ConsoleDep, TokenDep, check_token, error
+from console.photos import PhotoError, decode_photo
+from console.store import json_safe
+
+router = APIRouter(prefix="/api/calibration", tags=["calibration"])
+
+DeploymentParam = Path(pattern="^(sim|stretch)$", description="the deployment whose tau is calibrated")
+JobParam = Path(pattern="^[0-9a-f]{12}$")
+
+
+def _job(console: Console, job_id: str) -> Any:
+    job = console.calibrator.get(job_id)
+    if job is None:
+        raise error(404, "unknown_calibration", f"no calibration {job_id!r}")
+    return job
+
+
+@router.get("", summary="Each deployment's tau in force and where it comes from")
+def calibration_status(console: ConsoleDep) -> dict[str, Any]:
+    return json_safe({d: tau_in_force(console.data_dir, d) for d in DEPLOYMENTS} | {"busy": console.calibrator.busy})
+
+
+@router.post("/{deployment}", status_code=202, summary="Score every pair of the photos and propose tau (runs in the background)")
+async def start_calibration(
+    request: Request,
+    console: ConsoleDep,
+    photos: Annotated[list[UploadFile], File(description="the photos, several of each object")],
+    objects: Annotated[list[str], Form(description="for each photo, in the same order, the name of its object")],
+    deployment: str = DeploymentParam,
+    token: Annotated[str | None, Form(description="the console token when it is required")] = None,
+) -> JSONResponse:
+    check_token(console, request, token)
+    if len(objects) != len(photos):
+        raise error(422, "bad_labels", f"{len(photos)} photos but {len(objects)} object names: give one name per photo")
+    if console.manager.active_run_id is not None:
+        raise error(409, "run_active", "a run is active: calibrate when the robot is idle (they share the matcher)")
+    if console.calibrator.busy:
+        raise error(409, "calibration_running", "a calibration is already running")
+    labelled = []
+    for upload, label in zip(photos, objects):
+        label = label.strip()
+        if not label or len(label) > 80:
+            raise error(422, "bad_labels", "each photo needs an object name of 1-80 characters")
+        data = await upload.read(console.config.photo_limits.max_bytes + 1)
+        name = (upload.filename or "photo")[-80:]
+        try:
+            photo = await run_in_threadpool(decode_photo, data, console.config.photo_limits)
+        except PhotoError as exc:
+            raise error(exc.status, exc.code, f"{name} ({label}): {exc}") from None
+        labelled.append(LabelledPhoto(label, name, photo))
+    try:
+        job = console.calibrator.start(deployment, labelled)
+    except CalibrationInputError as exc:
+        raise error(422, "too_few_photos", str(exc)) from None
+    except RuntimeError as exc:
+        raise error(409, "calibration_running", str(exc)) from None
+    return JSONResponse(json_safe(job.view()), status_code=202, headers={"location": f"/api/calibration/jobs/{job.id}"})
+
+
+@router.get("/jobs/{job_id}", summary="A calibration's progress and, when done, its curves and proposed tau")
+def calibration_job(console: ConsoleDep, job_id: str = JobParam) -> dict[str, Any]:
+    return json_safe(_job(console, job_id).view())
+
+
+@router.post("/jobs/{job_id}/save", summary="Save the proposed tau for the job's deployment", dependencies=[TokenDep])
+def save_calibration(console: ConsoleDep, job_id: str = JobParam) -> dict[str, Any]:
+    job = _job(console, job_id)
+    try:
+        doc = console.calibrator.save(job)
+    except CalibrationInputError as exc:
+        raise error(409, "not_done", str(exc)) from None
+    return json_safe({"saved": doc, "in_force": tau_in_force(console.data_dir, job.deployment)})

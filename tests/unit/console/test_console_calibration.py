@@ -1,0 +1,142 @@
+"""Calibrating a deployment's tau from the operator's photos: the API with a stand-in
+matcher (fast, exact expectations) and every bad input. The real matcher on simulator
+goal images is in tests/integration/console/test_console_calibration_sim.py."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from agent.reid.base import Features, Matches
+from agent.reid.identifier import ReIDConfig
+from console.api import create_app
+from console.calibration import Calibrator
+from console.context import Console, ConsoleConfig
+from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+
+
+class ColourMatcher:
+    """Photos of one object share a base texture (seed): many confident matches; others few."""
+
+    name = "colour"
+
+    def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
+        return Features(np.zeros((1, 2), np.float32), rgb.reshape(-1, 3)[:64].astype(np.float32), (rgb.shape[1], rgb.shape[0]))
+
+    def match(self, goal: Features, obs: Features) -> Matches:
+        same = float(np.abs(goal.descriptors - obs.descriptors).mean()) < 30
+        n = 40 if same else 4
+        return Matches(np.arange(n), np.arange(n), np.full(n, 0.9 if same else 0.3, np.float32))
+
+
+def photo_of(obj: int, view: int) -> bytes:
+    rgb = textured_rgb(96, 128, seed=obj).astype(np.int16)
+    rgb = np.clip(rgb + np.random.default_rng(100 * obj + view).integers(-8, 8, rgb.shape), 0, 255).astype(np.uint8)
+    return encode(rgb, "JPEG", quality=92)
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[tuple[Console, TestClient]]:
+    console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider()})
+    console.calibrator = Calibrator(console.data_dir, matcher_for=lambda d: (ColourMatcher(), ReIDConfig(matcher="xfeat_lighterglue")))
+    with TestClient(create_app(console)) as c:
+        yield console, c
+    console.close()
+
+
+def upload(objects: list[tuple[str, int, int]]) -> tuple[list[tuple[str, Any]], dict[str, list[str]]]:
+    files = [("photos", (f"{label}-{view}.jpg", photo_of(obj, view), "image/jpeg")) for label, obj, view in objects]
+    return files, {"objects": [label for label, _, _ in objects]}
+
+
+def test_calibrate_from_photos_and_save(client) -> None:
+    console, c = client
+    before = c.get("/api/calibration").json()
+    assert before["stretch"]["file"] is None and "packaged" in before["stretch"]["source"]
+    files, data = upload([(name, obj, v) for obj, name in enumerate(["mug", "chair", "plant"]) for v in range(3)])
+    resp = c.post("/api/calibration/stretch", files=files, data=data)
+    assert resp.status_code == 202, resp.text
+    job = resp.json()
+    assert job["objects"] == {"mug": 3, "chair": 3, "plant": 3} and job["photos"] == 9
+    done = poll(lambda: c.get(f"/api/calibration/jobs/{job['id']}").json(), lambda j: j["state"] in ("done", "failed"))
+    assert done["state"] == "done", done
+    result = done["result"]
+    assert result["same_pairs"] == 9 and result["different_pairs"] == 27
+    p = result["proposal"]
+    # conf: same pairs 40 * 0.9 = 36, different 4 * 0.3 = 1.2 -> separable: F = 1 at tau 36
+    assert p["score"] == "conf" and p["tau"] == pytest.approx(36.0) and p["max_f"] == pytest.approx(1.0)
+    assert p["same_pairs_accepted"] == 9 and p["different_pairs_accepted"] == 0
+    assert len(result["curves"]["conf"]["f_curve"]) == len(result["curves"]["conf"]["threshold"]) >= 2
+    saved = c.post(f"/api/calibration/jobs/{job['id']}/save")
+    assert saved.status_code == 200, saved.text
+    doc = json.loads((console.data_dir / "calibration" / "stretch.json").read_text())
+    assert doc["tau"] == pytest.approx(36.0) and doc["matcher"] == "xfeat_lighterglue" and doc["score"] == "conf"
+    assert (doc["same_pairs"], doc["different_pairs"]) == (9, 27) and doc["created"] and "operator photos" in doc["source"]
+    after = c.get("/api/calibration").json()
+    assert after["stretch"]["tau"] == pytest.approx(36.0) and "your photos" in after["stretch"]["source"]
+    assert after["sim"]["file"] is None  # only the chosen deployment changed
+
+
+@pytest.mark.parametrize(
+    "objects, status, fragment",
+    [
+        ([("mug", 0, 0), ("mug", 0, 1), ("mug", 0, 2)], 422, "at least 2 different objects"),
+        ([("mug", 0, 0), ("mug", 0, 1), ("chair", 1, 0)], 422, "fewer than 2 photos: chair"),
+    ],
+)
+def test_too_few_objects_or_photos(client, objects, status: int, fragment: str) -> None:
+    _, c = client
+    files, data = upload(objects)
+    resp = c.post("/api/calibration/sim", files=files, data=data)
+    assert resp.status_code == status and fragment in resp.json()["detail"]["message"], resp.text
+
+
+def test_unreadable_photo_names_the_file(client) -> None:
+    _, c = client
+    files, data = upload([("mug", 0, 0), ("mug", 0, 1), ("chair", 1, 0), ("chair", 1, 1)])
+    files[2] = ("photos", ("broken.jpg", b"not a picture at all" * 10, "image/jpeg"))
+    resp = c.post("/api/calibration/sim", files=files, data=data)
+    assert resp.status_code == 415 and "broken.jpg (chair)" in resp.json()["detail"]["message"], resp.text
+
+
+def test_labels_must_match_photos_and_deployment_must_exist(client) -> None:
+    _, c = client
+    files, data = upload([("mug", 0, 0), ("mug", 0, 1), ("chair", 1, 0), ("chair", 1, 1)])
+    resp = c.post("/api/calibration/sim", files=files, data={"objects": data["objects"][:3]})
+    assert resp.status_code == 422 and resp.json()["detail"]["code"] == "bad_labels"
+    assert c.post("/api/calibration/warp", files=files, data=data).status_code == 422
+    assert c.post("/api/calibration/sim", data=data).status_code == 422  # no photos
+    assert c.get("/api/calibration/jobs/0123456789ab").status_code == 404
+    assert c.post("/api/calibration/jobs/0123456789ab/save").status_code == 404
+    assert c.get("/api/calibration/jobs/..%2F..").status_code in (404, 422)
+
+
+def test_calibration_needs_the_token_off_loopback(tmp_path: Path) -> None:
+    console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, host="0.0.0.0", allowed_hosts=("testserver",)), {})
+    try:
+        with TestClient(create_app(console)) as c:
+            files, data = upload([("mug", 0, 0), ("mug", 0, 1), ("chair", 1, 0), ("chair", 1, 1)])
+            assert c.post("/api/calibration/sim", files=files, data=data).status_code == 401
+            assert c.post("/api/calibration/jobs/0123456789ab/save").status_code == 401
+    finally:
+        console.close()
+
+
+def test_saved_file_is_what_the_deployment_reads(client) -> None:
+    """The agent side (console.agents.read_deployment_calibration) accepts the saved file."""
+    from agent.config import load_agent_config
+    from console.agents import read_deployment_calibration
+
+    console, c = client
+    files, data = upload([(name, obj, v) for obj, name in enumerate(["mug", "chair"]) for v in range(2)])
+    job = c.post("/api/calibration/stretch", files=files, data=data).json()
+    poll(lambda: c.get(f"/api/calibration/jobs/{job['id']}").json()["state"], lambda s: s == "done")
+    assert c.post(f"/api/calibration/jobs/{job['id']}/save").status_code == 200
+    reid = load_agent_config("stretch").reid
+    doc = read_deployment_calibration(console.data_dir / "calibration" / "stretch.json", reid.matcher, reid.score)
+    assert doc["tau"] > 0
