@@ -165,6 +165,7 @@ class ModIINAgent:
 
         # 4. decision and planning
         t = time.perf_counter()
+        self._rejected_now = False
         decision = self._decide(obs, candidates)
         timings["planning"] = _ms(t)
 
@@ -178,7 +179,8 @@ class ModIINAgent:
         timings["total"] = _ms(t_start)  # includes the record's map snapshot
         plan, cand = decision.plan, decision.candidate
         robot_xy = (obs.pose.x_m, obs.pose.y_m)
-        live = self._evaluate(self.localiser.candidates(self.grid)) if len(self.localiser.points_xyz) else []
+        # the candidates as they stand after the decision (a rejection changes them)
+        live = self._evaluate(self.localiser.candidates(self.grid)) if self._rejected_now else candidates
         self._record = AgentRecord(
             step=obs.step,
             action=action,
@@ -285,6 +287,7 @@ class ModIINAgent:
     def _reject(self, cand: Candidate, why: str, robot_xy_m: tuple[float, float]) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
         self.memory.reject(cand, robot_xy_m)
+        self._rejected_now = True
         self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m)
         a = self._state.approach
         self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0), verify=None)
