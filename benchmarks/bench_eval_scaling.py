@@ -66,7 +66,7 @@ def main() -> int:
 
     local_s, local_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "local")
     t0 = time.perf_counter()
-    ray.init(num_cpus=args.cpus, include_dashboard=False, logging_level=logging.WARNING)
+    ray.init(address="local", num_cpus=args.cpus, include_dashboard=False, logging_level=logging.WARNING)
     startup_s = time.perf_counter() - t0
     try:
         ray_s, ray_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "ray",

@@ -90,7 +90,9 @@ def connect(options: RayOptions) -> bool:
     t0 = time.perf_counter()
     try:
         if options.address == "local":
-            ray.init(num_cpus=max(1, options.num_cpus), **kw)
+            # address="local" always starts a new instance; without it ray.init joins whatever
+            # /tmp/ray/ray_current_cluster names, even a cluster that no longer runs
+            ray.init(address="local", num_cpus=max(1, options.num_cpus), **kw)
         else:
             kw.pop("include_dashboard")  # only for a cluster started here
             ray.init(address=options.address, **kw)
