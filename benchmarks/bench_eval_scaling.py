@@ -29,13 +29,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 SAME_FIELDS = ("success", "spl", "ne", "steps", "path_length_m", "stop_reason", "called_stop", "max_steps_reached")
 
 
-def _eval(ep_dir: str, agent: str, cpus: int, limit: int, out: Path, ray_options=None) -> tuple[float, list[dict]]:
+def _eval(ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str],
+          ray_options=None) -> tuple[float, list[dict]]:
     from sim.evaluation.cli import add_arguments
     from sim.evaluation.runner import read_records, run_evaluation
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    args = parser.parse_args(["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus)])
+    args = parser.parse_args(["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus), *extra])
     t0 = time.perf_counter()
     run_evaluation(ep_dir, agent, args, out, limit=limit, workers=cpus, progress=False, ray=ray_options)
     return time.perf_counter() - t0, read_records(out)
@@ -49,6 +50,8 @@ def main() -> int:
     p.add_argument("--cpus", type=int, default=2)
     p.add_argument("--machines", type=int, nargs="+", default=[1, 2, 5, 10, 25, 50])
     p.add_argument("--json", default=None, help="also write the figures to this file")
+    p.add_argument("--eval-args", default="", help="more `imgnav eval` flags, e.g. \"--modiin-set reid.gate=true\"")
+    p.add_argument("--keep", default=None, help="write the two runs' outputs under this directory (default: a temp dir)")
     args = p.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -64,12 +67,19 @@ def main() -> int:
         ep_dir = str(Path(tmp.name) / "episodes")
         generate_episode_set("val", 0, args.limit, ep_dir, workers=args.cpus, progress=False)
 
-    local_s, local_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "local")
+    import shlex
+
+    extra = shlex.split(args.eval_args)
+    runs = Path(args.keep) if args.keep else Path(tmp.name)
+    for name in ("local", "ray"):
+        if (runs / name / "episodes.jsonl").exists():
+            raise SystemExit(f"{runs / name} holds an earlier run; use another --keep")
+    local_s, local_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / "local", extra)
     t0 = time.perf_counter()
     ray.init(address="local", num_cpus=args.cpus, include_dashboard=False, logging_level=logging.WARNING)
     startup_s = time.perf_counter() - t0
     try:
-        ray_s, ray_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, Path(tmp.name) / "ray",
+        ray_s, ray_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / "ray", extra,
                                 RayOptions(address="local", num_cpus=args.cpus))
     finally:
         ray.shutdown()
@@ -83,7 +93,7 @@ def main() -> int:
     cost_cpu_s = ray_s * args.cpus / n
     hours = {m: (cost_cpu_s * 1000 / (m * args.cpus) + startup_s) / 3600 for m in args.machines}
     fig = {
-        "agent": args.agent, "episodes": n, "episode_set": ep_dir, "cpus": args.cpus,
+        "agent": args.agent, "eval_args": args.eval_args, "episodes": n, "episode_set": ep_dir, "cpus": args.cpus,
         "local_wall_s": round(local_s, 1), "ray_wall_s": round(ray_s, 1), "ray_startup_s": round(startup_s, 2),
         "episodes_per_hour_local": round(eph_local, 1), "episodes_per_hour_ray": round(eph_ray, 1),
         "episodes_per_hour_ray_with_startup": round(eph_ray_startup, 1),
@@ -92,7 +102,7 @@ def main() -> int:
         "records_identical": f"{same}/{n}", "cpu_s_per_episode": round(cost_cpu_s, 1),
         "hours_for_1000_episodes": {str(m): round(h, 2) for m, h in hours.items()},
     }
-    print(f"{args.agent} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back")
+    print(f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back")
     print("| run | wall (s) | episodes/hour |")
     print("| --- | ---: | ---: |")
     print(f"| --workers {args.cpus} | {local_s:.1f} | {eph_local:.1f} |")
