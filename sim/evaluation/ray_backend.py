@@ -223,6 +223,8 @@ def run_scenes_on_ray(options: RayOptions, es: EpisodeSet, groups: Sequence[Sequ
                     scene.lost += 1
                     n_lost += 1
                     ids = [e.episode_id for e in scene.episodes]
+                    if not ids:  # lost after its last record: nothing left to run
+                        continue
                     if scene.lost <= options.max_retries:
                         log.warning("ray: task of scene %d lost (%s: %s); retry %d/%d with %d episode(s)",
                                     scene.episodes[0].scene_seed, type(exc).__name__, _first_line(exc), scene.lost,
