@@ -321,7 +321,9 @@ class StretchBackend:
                 outcome[:] = [(state.base_world, False)]
                 return True
             if obs is not None and obs.step is not None and obs.step >= step and obs.last_motion_failed:
-                outcome[:] = [(obs.base_world, True)]
+                # where it stopped: the state's pose (read after the echo); the observation's
+                # pose was read before its step was stamped and may predate the motion's end
+                outcome[:] = [(state.base_world, True)]
                 return True
             return False
 
