@@ -109,7 +109,11 @@ def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> 
     if own is not None and own.is_file():
         data = read_deployment_calibration(own, reid.matcher, reid.score)
         config = dataclasses.replace(config, reid=dataclasses.replace(reid, calibration_file=str(own)))
-        facts = {k: data[k] for k in CALIBRATION_KEYS if k not in ("matcher", "score", "tau")}
+        # the calibration's own facts (dates, pair counts, source, max F ...), scalars only
+        facts = {
+            k: v for k, v in data.items() if k not in ("matcher", "score", "tau", "kind", "path")
+            and (v is None or isinstance(v, (str, int, float, bool)))
+        }
         return config, {"kind": "deployment_calibration", "path": str(own), **facts}
     if reid.calibration_file:
         return config, {"kind": "yaml_calibration_file", "path": str(reid.calibration_file)}

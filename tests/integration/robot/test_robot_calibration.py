@@ -30,6 +30,8 @@ def write_calibration(calibration_dir: Path, tau: float = 6.0, **overrides) -> P
         "different_pairs": 300,
         "created": "2026-11-29T11:00:00Z",
         "source": "operator photos (12 photos of 4 objects)",
+        "max_f": 0.8,  # the console's calibration page writes these too
+        "objects": 4,
         **overrides,
     }
     path = deployment_calibration_path(calibration_dir, "stretch")
@@ -44,7 +46,7 @@ def test_the_deployment_calibration_is_used_when_present(tmp_path: Path) -> None
     assert resolve_tau(config.reid) == 6.0
     assert source["kind"] == "deployment_calibration" and source["path"] == str(path)
     assert source["created"] == "2026-11-29T11:00:00Z" and source["same_pairs"] == 40 and source["different_pairs"] == 300
-    assert source["source"].startswith("operator photos")
+    assert source["source"].startswith("operator photos") and source["max_f"] == 0.8 and source["objects"] == 4
 
 
 def test_without_one_the_packaged_simulator_tau_is_used_and_said(tmp_path: Path) -> None:
