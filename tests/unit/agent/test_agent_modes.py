@@ -161,3 +161,11 @@ def test_verify_by_approach_rejects_what_only_matches_from_afar():
     assert any(c.state == "rejected" for c in rec.candidates)
     assert any(d.reason.startswith("verify: look") for d, _ in steps)
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+
+
+def test_stop_rule_core_stops_in_sight_of_the_goal():
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    steps = run_decisions(oracle_agent(world, stop_rule="core", stop_radius_m=0.6), world)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 0.8
