@@ -288,13 +288,25 @@ def failure_distribution(records: list[dict[str, Any]]) -> dict[str, Any]:
     return {"failed": len(failed), "counts": dict(counts), "shares": {k: round(v / n, 3) for k, v in counts.items()}}
 
 
+def _with_ci(value: float, ci: Any) -> str:
+    if isinstance(ci, (list, tuple)) and len(ci) == 2 and all(isinstance(c, (int, float)) for c in ci):
+        return f"{value:.3f} [{ci[0]:.2f}, {ci[1]:.2f}]"
+    return f"{value:.3f}"
+
+
 def table_row(label: str, summary: Mapping[str, Any]) -> str:
+    """One row of the paper's layout; SR and SPL carry their 95% bootstrap-over-homes interval
+    and the episode count its number of homes, when the summary has them."""
     ne = summary.get("ne")
     ne_s = f"{ne:.2f}" if isinstance(ne, (int, float)) and math.isfinite(ne) else str(ne)
-    return f"| {label} | {ne_s} | {summary['max_st']:.3f} | {summary['sr']:.3f} | {summary['spl']:.3f} | {summary['episodes']} |"
+    sr = _with_ci(summary["sr"], summary.get("sr_ci95"))
+    spl = _with_ci(summary["spl"], summary.get("spl_ci95"))
+    n = f"{summary['episodes']}" + (f" ({summary['homes']} homes)" if "homes" in summary else "")
+    return f"| {label} | {ne_s} | {summary['max_st']:.3f} | {sr} | {spl} | {n} |"
 
 
-TABLE_HEADER = "| variant | NE (m) | Max-ST | SR | SPL | episodes |\n| --- | --- | --- | --- | --- | --- |"
+TABLE_HEADER = ("| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |\n"
+                "| --- | --- | --- | --- | --- | --- |")
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:

@@ -100,3 +100,9 @@ def test_distribution_and_table():
                  modiin={"median_ms": {"total": 10.0}}) for r in recs]
     s = summarize(full)
     assert s["agent_median_ms_per_step"]["total"] == 10.0 and "| v |" in s["table_md"]
+
+
+def test_table_row_with_home_intervals():
+    row = table_row("x", {"ne": 1.0, "max_st": 0.0, "sr": 0.5, "spl": 0.25, "episodes": 4, "homes": 2,
+                          "sr_ci95": [0.25, 0.75], "spl_ci95": [0.1, 0.4]})
+    assert row == "| x | 1.00 | 0.000 | 0.500 [0.25, 0.75] | 0.250 [0.10, 0.40] | 4 (2 homes) |"
