@@ -202,6 +202,9 @@ class Attribution:
         self.timings: dict[str, list[float]] = {}
         self.trace_score: list[float | None] = []  # per step: re-ID score and goal pixels in view,
         self.trace_goal_px: list[int] = []  # kept for threshold analysis on train episodes
+        self.trace_gate: list[float | None] = []  # the re-ID gate's cheap score (None: not computed)
+        self.full_matcher_steps = 0  # steps on which the full matcher ran
+        self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
@@ -214,6 +217,9 @@ class Attribution:
             return
         self.trace_score.append(None if record.reid_score is None else round(float(record.reid_score), 2))
         self.trace_goal_px.append(px)
+        self.trace_gate.append(None if record.reid_gate_score is None else round(float(record.reid_gate_score), 1))
+        self.full_matcher_steps += bool(record.reid_full_matcher)
+        self.gated_goal_in_view += bool(seen and record.reid_full_matcher is False)
         self.last = record
         self.modes[record.mode] += 1
         if record.planner_error:
@@ -273,7 +279,9 @@ class Attribution:
                 "planner_errors": self.planner_errors,
                 "modes": dict(self.modes),
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
-                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px},
+                "full_matcher_steps": self.full_matcher_steps,
+                "gated_goal_in_view_steps": self.gated_goal_in_view,
+                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate},
             },
         }
 

@@ -43,15 +43,18 @@ class FakeOracle:
 
 
 class Rec:
-    def __init__(self, detected, pts, mode="explore"):
+    def __init__(self, detected, pts, mode="explore", full_matcher=True):
         self.goal_detected = detected
         self.goal_points_xyz = np.asarray(pts, np.float32).reshape(-1, 3)
         self.mode, self.reason, self.planner_error, self.timings_ms = mode, "", None, {"total": 1.0}
-        self.reid_score = 100.0 if detected else 1.0
+        self.reid_score = 100.0 if detected else (1.0 if full_matcher else 0.0)
+        self.reid_full_matcher = full_matcher
+        self.reid_gate_score = 90.0 if full_matcher else 3.0
 
 
 def attribution(steps):
-    """steps: list of (goal pixels in view, detected, candidate points in the start frame)."""
+    """steps: list of (goal pixels in view, detected, candidate points in the start frame[, full
+    matcher ran])."""
     a = Attribution.__new__(Attribution)
     a.oracle = FakeOracle()
     a.seen_px, a.variant = 2300, "v"
@@ -60,12 +63,13 @@ def attribution(steps):
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
     a.modes, a.timings = Counter(), {}
-    a.trace_score, a.trace_goal_px = [], []
+    a.trace_score, a.trace_goal_px, a.trace_gate = [], [], []
+    a.full_matcher_steps = a.gated_goal_in_view = 0
     obs = type("O", (), {"step": 0})()
-    for k, (px, det, pts) in enumerate(steps):
+    for k, (px, det, pts, *full) in enumerate(steps):
         a.oracle.px = px
         obs.step = k
-        a.on_step(obs, None, Rec(det, pts))
+        a.on_step(obs, None, Rec(det, pts, full_matcher=full[0] if full else True))
     return a
 
 
@@ -85,7 +89,15 @@ def test_attribution_classes():
     # recognised with the goal in view but no candidate ever landed on it: localisation
     assert attribution([(5000, True, []), (0, False, [])]).cause(False) == "localisation"
     trace = attribution([(5000, True, ON_GOAL), (0, False, [])]).finish({"success": False})["modiin"]["trace"]
-    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0]}
+    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0], "gate_score": [90.0, 90.0]}
+
+
+def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
+    # goal in view and gated; goal in view and matched; out of view and gated
+    out = attribution([(5000, False, [], False), (5000, True, ON_GOAL, True), (0, False, [], False)]).finish(
+        {"success": False})["modiin"]
+    assert out["full_matcher_steps"] == 1 and out["gated_goal_in_view_steps"] == 1
+    assert out["trace"]["gate_score"] == [3.0, 90.0, 3.0] and out["trace"]["reid_score"] == [0.0, 100.0, 0.0]
 
 
 def test_distribution_and_table():
