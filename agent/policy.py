@@ -35,12 +35,13 @@ from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
+from agent.motion import blocked_here, move_key, safe_action
 from agent.modes import SCAN_TURNS, ApproachState, Decision, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
-from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, AgentRecord, Observation, Pose2D, wrap_angle
+from agent.types import FORWARD_STEP_M, Action, AgentRecord, Observation, Pose2D, wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +50,6 @@ OracleEgoMask = Callable[[Observation], np.ndarray]
 
 _EMPTY2 = np.zeros((0, 2), np.float32)
 _EMPTY3 = np.zeros((0, 3), np.float32)
-_N_HEADINGS = int(round(360 / TURN_ANGLE_DEG))
 
 
 class ModIINAgent:
@@ -123,7 +123,7 @@ class ModIINAgent:
             if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
                 self.grid.mark_collision(self._prev_pose)
                 m = self._state.motion
-                self._set(motion=replace(m, blocked=m.blocked | {self._move_key(self._prev_pose)}))
+                self._set(motion=replace(m, blocked=m.blocked | {move_key(self.grid, self._prev_pose)}))
             self.grid.mark_visited((self._prev_pose.x_m, self._prev_pose.y_m), (obs.pose.x_m, obs.pose.y_m))
         else:
             self.grid.mark_visited((obs.pose.x_m, obs.pose.y_m), (obs.pose.x_m, obs.pose.y_m))
@@ -211,42 +211,10 @@ class ModIINAgent:
     def _set(self, **changes) -> None:
         self._state = replace(self._state, **changes)
 
-    # --- motion memory: failed forward moves ----------------------------------------------
-
-    def _move_key(self, pose: Pose2D) -> tuple[int, int, int]:
-        i, j = self.grid.xy_to_ij(np.array([[pose.x_m, pose.y_m]]))[0]
-        return int(i) + self.grid.origin_ij[0], int(j) + self.grid.origin_ij[1], _heading_bin(pose.yaw_rad)
-
-    def _blocked_here(self, pose: Pose2D) -> bool:
-        """A forward move from this cell failed, at any heading."""
-        i, j, _ = self._move_key(pose)
-        return any((i, j, h) in self._state.motion.blocked for h in range(_N_HEADINGS))
-
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
-        """The plan's action, unless it is a forward move that already failed from this very
-        cell and heading (the collision mark is only a guess of what blocked it): then turn
-        towards the side the path bends to. And when the plan turns back to such a heading (it
-        points between two 30 deg headings and the nearer one is blocked), step forward on the
-        current heading instead, to get round what blocked the move, rather than turn to and
-        fro on the spot; only where the map shows that step traversible."""
-        motion = self._state.motion
-        key = self._move_key(pose)
-        if plan.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
-            sign = 1.0 if plan.action == Action.TURN_LEFT else -1.0
-            turned = Pose2D(pose.x_m, pose.y_m, pose.yaw_rad + sign * math.radians(TURN_ANGLE_DEG))
-            if self._move_key(turned) in motion.blocked and key not in motion.blocked:
-                here = np.array([pose.x_m, pose.y_m])
-                ahead = here + FORWARD_STEP_M * np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
-                if self.planner.line_free(self.grid, field, here, ahead):
-                    return Action.MOVE_FORWARD
-        if plan.action != Action.MOVE_FORWARD or key not in motion.blocked:
-            self._set(motion=replace(motion, blocked_repeats=0))
-            return plan.action
-        self._set(motion=replace(motion, blocked_repeats=motion.blocked_repeats + 1))
-        path = plan.path_xy_m
-        far = path[min(len(path) - 1, 8)]
-        err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
-        return Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT
+        action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion)
+        self._set(motion=motion)
+        return action
 
     # --- localisation and candidates ---------------------------------------------------
 
@@ -327,7 +295,7 @@ class ModIINAgent:
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
-        near_enough = (self._state.approach.region_unreachable or self._blocked_here(pose)) and region_within(
+        near_enough = (self._state.approach.region_unreachable or blocked_here(self.grid, self._state.motion, pose)) and region_within(
             stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
             return self._at_candidate(obs, cand)
@@ -442,7 +410,7 @@ class ModIINAgent:
             # small turn off and back onto the bearing
             ahead = np.array(robot_xy) + FORWARD_STEP_M * np.array([math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)])
             a_ij = grid.xy_to_ij(ahead[None])[0]
-            if grid.in_bounds(a_ij[None])[0] and ring[a_ij[0], a_ij[1]] and not self._blocked_here(pose):
+            if grid.in_bounds(a_ij[None])[0] and ring[a_ij[0], a_ij[1]] and not blocked_here(self.grid, self._state.motion, pose):
                 field = self.planner.distance_field(grid, pose)
                 if self.planner.line_free(grid, field, np.array(robot_xy), ahead):
                     return Decision(Action.MOVE_FORWARD, Mode.VERIFY, f"verify: look {v.views + 1}, stepping nearer",
@@ -552,10 +520,6 @@ class ModIINAgent:
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
                         planner_error=error or "no_frontier")
-
-
-def _heading_bin(yaw_rad: float) -> int:
-    return int(round(yaw_rad / math.radians(TURN_ANGLE_DEG))) % _N_HEADINGS
 
 
 def _ms(t0: float) -> float:
