@@ -13,7 +13,13 @@ Validity: the start is collision-free with 0.1 m to spare, in the same free
 component as the viewpoints, and the goal region is reachable on the robot's discrete motion
 lattice (a lattice A* search with the simulator's own collision-checked step).
 Episodes whose region the lattice cannot reach would be unsolvable with the
-task's actions, so they are not generated.
+task's actions, so they are not generated. Finally every episode must be solved by the
+shortest-path oracle agent itself (``sim.oracle_agent``, its own A* weight and node budget,
+run through a ``SimBackend`` and scored by ``sim.metrics``), so that oracle SR is 1.0 by
+construction: the validation search above is a different search (greedier weight 2.0 against
+the oracle's 1.2, both capped at ``lattice.MAX_EXPANSIONS``), and a start it accepts is not
+guaranteed to be solved by the oracle. A start the oracle does not solve is replaced by
+another (``oracle_check``).
 
 Deterministic: every random choice comes from RNGs seeded by (split, seed, k);
 floats are rounded before they are used, so the JSON and PNGs are identical
@@ -52,6 +58,7 @@ class EpisodeGenConfig:
     distractor_every: int = 5
     validate_weight: float = 2.0
     start_clearance_m: float = 0.1
+    oracle_check: bool = True  # run the oracle agent on each episode and keep only those it solves
 
 
 def _scene_episodes(split: str, set_seed: int, k: int, out_dir: Path, cfg: EpisodeGenConfig) -> list[Episode]:
@@ -120,9 +127,15 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
                 continue
             plan = plan_to_goal(world.move, pose, goal, lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),
                                 weight=cfg.validate_weight)
-            if plan is not None:
-                start = (pose, plan)
-                break
+            if plan is None:
+                continue
+            geo_m = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
+            if cfg.oracle_check and not oracle_solves(world, pose, inst_id, vp, geo_m):
+                log.info("scene %d instance %d: the oracle agent does not solve start %s; trying another",
+                         scene_seed, inst_id, pose)
+                continue
+            start = (pose, plan)
+            break
         if start is None:
             log.debug("scene %d instance %d: no lattice-reachable start", scene_seed, inst_id)
             continue
@@ -155,6 +168,31 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
         episodes.append(Episode(episode_id, split, scene_seed, pose, inst_id, obj.category, rel,
                                 tuple((float(x), float(y)) for x, y in vp), geo, info))
     return episodes
+
+
+def oracle_solves(world: SimWorld, start_world: Pose2D, goal_instance_id: int, viewpoints_xy_m: np.ndarray,
+                  shortest_path_m: float) -> bool:
+    """Whether the shortest-path oracle agent succeeds on this episode, as ``imgnav eval --agent
+    oracle`` would run it (same backend, agent and metrics). The oracle never looks at the
+    images, so one blank observation stands in for the renders."""
+    from agent.types import Intrinsics, Observation
+    from sim.backend import SimBackend
+    from sim.oracle_agent import OracleAgent
+
+    blank = np.zeros((1, 1, 3), np.uint8)
+    backend = SimBackend(world, blank, start_world, goal_instance_id, np.asarray(viewpoints_xy_m, float), shortest_path_m)
+    try:
+        agent = OracleAgent(backend.oracle)
+        agent.reset(blank)
+        intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
+        while not backend.done:
+            obs = Observation(rgb=blank, depth_m=np.zeros((1, 1), np.float32), pose=Pose2D(), intrinsics=intr,
+                              goal_image=blank, step=backend.steps)
+            backend.apply(agent.act(obs))
+        result = backend.result()
+        return bool(result is not None and result.success)
+    finally:
+        backend.close()  # does not close the shared world
 
 
 def _worker(args: tuple[str, int, int, str, EpisodeGenConfig]) -> list[Episode]:

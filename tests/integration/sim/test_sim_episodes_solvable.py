@@ -1,0 +1,67 @@
+"""Every generated episode is solvable by the shortest-path oracle agent (checked at generation
+time by ``sim.episode_gen.oracle_solves``): over many homes, the oracle agent run on the stored
+episodes (JSON round trip, freshly built worlds) succeeds on every one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sim.episode_gen as episode_gen
+from agent.types import Intrinsics, Observation, Pose2D
+from sim.backend import SimBackend
+from sim.episode_gen import EpisodeGenConfig, generate_episode_set
+from sim.episodes import load_episode_set
+from sim.oracle_agent import OracleAgent
+from sim.world import SimWorld
+
+_BLANK = np.zeros((1, 1, 3), np.uint8)
+
+
+def _oracle_result(world: SimWorld, episode, goal_path: Path):
+    """The oracle agent on a stored episode; it never looks at images, so a blank observation
+    stands in for the renders (``test_sim_oracle_episode`` runs it with real ones)."""
+    backend = SimBackend.for_episode(world, episode, goal_path)
+    agent = OracleAgent(backend.oracle)
+    agent.reset(_BLANK)
+    intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
+    while not backend.done:
+        obs = Observation(rgb=_BLANK, depth_m=np.zeros((1, 1), np.float32), pose=Pose2D(), intrinsics=intr,
+                          goal_image=_BLANK, step=backend.steps)
+        backend.apply(agent.act(obs))
+    return backend.result()
+
+
+@pytest.mark.parametrize("split,seed", [("train", 901), ("val", 901)])
+def test_the_oracle_solves_every_generated_episode_over_many_homes(tmp_path: Path, split: str, seed: int) -> None:
+    out = tmp_path / split
+    generate_episode_set(split, seed, 8, out, EpisodeGenConfig(episodes_per_scene=1), progress=False)
+    es = load_episode_set(out)
+    assert len(es.episodes) == 8 and len({e.scene_seed for e in es.episodes}) == 8
+    for e in es.episodes:
+        world = SimWorld.from_seed(e.scene_seed)
+        try:
+            m = _oracle_result(world, e, es.goal_image_path(e))
+        finally:
+            world.close()
+        assert m is not None and m.success and m.steps > 1, (e.episode_id, m)
+
+
+def test_a_start_the_oracle_does_not_solve_is_replaced(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    refused: list[Pose2D] = []
+    real = episode_gen.oracle_solves
+
+    def first_start_unsolved(world, start, inst, vp, geo):
+        if not refused or refused[-1][1] != inst:
+            refused.append((start, inst))
+            return False
+        return real(world, start, inst, vp, geo)
+
+    monkeypatch.setattr(episode_gen, "oracle_solves", first_start_unsolved)
+    eps = generate_episode_set("train", 902, 2, tmp_path, EpisodeGenConfig(episodes_per_scene=2), progress=False)
+    assert len(eps) == 2 and refused
+    refused_starts = {(p.x_m, p.y_m, p.yaw_rad) for p, _ in refused}
+    assert all((e.start_pose_world.x_m, e.start_pose_world.y_m, e.start_pose_world.yaw_rad) not in refused_starts
+               for e in eps)
