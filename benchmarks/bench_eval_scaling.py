@@ -5,7 +5,8 @@ hours 1,000 episodes would take on N such machines.
 
 On the same first ``--limit`` episodes, back to back: ``imgnav eval --workers CPUS`` and
 ``imgnav eval --ray local --workers CPUS`` (Ray started here with CPUS CPUs; its start-up is
-timed on its own). Prints episodes per hour of each, the ratio ray/local (target >= 0.9),
+timed on its own; ``--repeat R`` alternates the order over R rounds and averages). Prints
+episodes per hour of each, the ratio ray/local (target >= 0.9),
 whether the per-episode records agree (metrics, steps, stop reason), the cost of one
 episode in CPU-seconds (wall x CPUs / episodes, from the Ray run) and the hours for 1,000
 episodes on N machines of CPUS cores (cost x 1000 / (N x CPUS), plus one Ray start-up;
@@ -51,13 +52,14 @@ def main() -> int:
     p.add_argument("--machines", type=int, nargs="+", default=[1, 2, 5, 10, 25, 50])
     p.add_argument("--json", default=None, help="also write the figures to this file")
     p.add_argument("--eval-args", default="", help="more `imgnav eval` flags, e.g. \"--modiin-set reid.gate=true\"")
+    p.add_argument("--repeat", type=int, default=1, help="rounds (the order alternates: local first, then ray first)")
     p.add_argument("--keep", default=None, help="write the two runs' outputs under this directory (default: a temp dir)")
     args = p.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
     import ray
 
-    from sim.evaluation.ray_backend import RayOptions
+    from sim.evaluation.ray_backend import RayOptions, connect
 
     tmp = tempfile.TemporaryDirectory()
     ep_dir = args.episodes
@@ -71,45 +73,66 @@ def main() -> int:
 
     extra = shlex.split(args.eval_args)
     runs = Path(args.keep) if args.keep else Path(tmp.name)
-    for name in ("local", "ray"):
-        if (runs / name / "episodes.jsonl").exists():
-            raise SystemExit(f"{runs / name} holds an earlier run; use another --keep")
-    local_s, local_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / "local", extra)
-    t0 = time.perf_counter()
-    ray.init(address="local", num_cpus=args.cpus, include_dashboard=False, logging_level=logging.WARNING)
-    startup_s = time.perf_counter() - t0
-    try:
-        ray_s, ray_recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / "ray", extra,
-                                RayOptions(address="local", num_cpus=args.cpus))
-    finally:
-        ray.shutdown()
+    if runs.exists() and any(runs.glob("*/episodes.jsonl")):
+        raise SystemExit(f"{runs} holds earlier runs; use another --keep")
+
+    def local_run(r: int) -> tuple[float, list[dict], float]:
+        wall, recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"local{r}", extra)
+        return wall, recs, 0.0
+
+    def ray_run(r: int) -> tuple[float, list[dict], float]:
+        options = RayOptions(address="local", num_cpus=args.cpus)
+        t0 = time.perf_counter()
+        connect(options)  # as `imgnav eval --ray local` starts it; the run below reuses it
+        startup = time.perf_counter() - t0
+        try:
+            wall, recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"ray{r}", extra, options)
+        finally:
+            ray.shutdown()
+        return wall, recs, startup
+
+    # back to back; with --repeat the order alternates so a drifting machine load favours neither
+    results: dict[str, list[tuple[float, list[dict], float]]] = {"local": [], "ray": []}
+    for r in range(args.repeat):
+        order = [("local", local_run), ("ray", ray_run)] if r % 2 == 0 else [("ray", ray_run), ("local", local_run)]
+        for name, fn in order:
+            results[name].append(fn(r))
+    local_s = sum(x[0] for x in results["local"]) / args.repeat
+    ray_s = sum(x[0] for x in results["ray"]) / args.repeat
+    startup_s = sorted(x[2] for x in results["ray"])[args.repeat // 2]
+    local_recs, ray_recs = results["local"][0][1], results["ray"][0][1]
 
     n = len(local_recs)
-    assert n == len(ray_recs), (n, len(ray_recs))
     by_id = {r["episode_id"]: r for r in local_recs}
-    same = sum(all(r[k] == by_id[r["episode_id"]][k] for k in SAME_FIELDS) for r in ray_recs)
+    same = sum(all(r[k] == by_id[r["episode_id"]][k] for k in SAME_FIELDS)
+               for run in results["local"] + results["ray"] for r in run[1] if r["episode_id"] in by_id)
+    total = sum(len(run[1]) for run in results["local"] + results["ray"])
     eph_local, eph_ray = 3600 * n / local_s, 3600 * n / ray_s
     eph_ray_startup = 3600 * n / (ray_s + startup_s)
     cost_cpu_s = ray_s * args.cpus / n
     hours = {m: (cost_cpu_s * 1000 / (m * args.cpus) + startup_s) / 3600 for m in args.machines}
     fig = {
         "agent": args.agent, "eval_args": args.eval_args, "episodes": n, "episode_set": ep_dir, "cpus": args.cpus,
-        "local_wall_s": round(local_s, 1), "ray_wall_s": round(ray_s, 1), "ray_startup_s": round(startup_s, 2),
+        "repeat": args.repeat,
+        "local_wall_s": [round(x[0], 1) for x in results["local"]], "ray_wall_s": [round(x[0], 1) for x in results["ray"]],
+        "ray_startup_s": [round(x[2], 2) for x in results["ray"]],
         "episodes_per_hour_local": round(eph_local, 1), "episodes_per_hour_ray": round(eph_ray, 1),
         "episodes_per_hour_ray_with_startup": round(eph_ray_startup, 1),
         "ratio_ray_over_local": round(eph_ray / eph_local, 3),
         "ratio_with_startup": round(eph_ray_startup / eph_local, 3),
-        "records_identical": f"{same}/{n}", "cpu_s_per_episode": round(cost_cpu_s, 1),
+        "records_identical": f"{same}/{total}", "cpu_s_per_episode": round(cost_cpu_s, 1),
         "hours_for_1000_episodes": {str(m): round(h, 2) for m, h in hours.items()},
     }
-    print(f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back")
-    print("| run | wall (s) | episodes/hour |")
-    print("| --- | ---: | ---: |")
-    print(f"| --workers {args.cpus} | {local_s:.1f} | {eph_local:.1f} |")
-    print(f"| --ray local ({args.cpus} CPUs) | {ray_s:.1f} | {eph_ray:.1f} |")
-    print(f"| --ray local incl. start-up | {ray_s + startup_s:.1f} | {eph_ray_startup:.1f} |")
+    print(f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back, "
+          f"{args.repeat} round(s) in alternating order")
+    print("| run | wall per round (s) | episodes/hour (mean wall) |")
+    print("| --- | --- | ---: |")
+    print(f"| --workers {args.cpus} | {', '.join(f'{x[0]:.1f}' for x in results['local'])} | {eph_local:.1f} |")
+    print(f"| --ray local ({args.cpus} CPUs) | {', '.join(f'{x[0]:.1f}' for x in results['ray'])} | {eph_ray:.1f} |")
+    print(f"| --ray local incl. start-up | | {eph_ray_startup:.1f} |")
     print(f"ratio ray/local {eph_ray / eph_local:.3f} (with start-up {eph_ray_startup / eph_local:.3f}); "
-          f"Ray start-up {startup_s:.2f} s; records identical (metrics, steps, stop reason): {same}/{n}")
+          f"Ray start-up {', '.join(f'{x[2]:.2f}' for x in results['ray'])} s; "
+          f"records equal to the first local run's (metrics, steps, stop reason): {same}/{total}")
     print(f"cost {cost_cpu_s:.1f} CPU-s per episode; 1,000 episodes on N machines of {args.cpus} cores:")
     print("| N | hours |")
     print("| ---: | ---: |")

@@ -91,8 +91,10 @@ def connect(options: RayOptions) -> bool:
     try:
         if options.address == "local":
             # address="local" always starts a new instance; without it ray.init joins whatever
-            # /tmp/ray/ray_current_cluster names, even a cluster that no longer runs
-            ray.init(address="local", num_cpus=max(1, options.num_cpus), **kw)
+            # /tmp/ray/ray_current_cluster names, even a cluster that no longer runs. Ray runs its
+            # workers at nice 15 (to favour its own daemons); on a shared machine that starves them
+            # against `--workers` processes at nice 0, so here they get the driver's priority.
+            ray.init(address="local", num_cpus=max(1, options.num_cpus), _system_config={"worker_niceness": 0}, **kw)
         else:
             kw.pop("include_dashboard")  # only for a cluster started here
             ray.init(address=options.address, **kw)
