@@ -59,7 +59,7 @@ class Candidate:
 @dataclass(frozen=True, slots=True)
 class View:
     """One frame's contribution: its step, re-ID score, the distance from the robot to the
-    centroid of the points it added (metres) and how many points it added."""
+    points it added (their 10th percentile, metres) and how many points it added."""
 
     step: int
     score: float
@@ -136,8 +136,11 @@ class GoalLocaliser:
         if len(xyz) < self.config.min_points_per_frame:
             return np.zeros((0, 3), np.float32)
         frame = obs.step
-        c = xyz[:, :2].mean(axis=0)
-        self._views[frame] = View(frame, float(score), float(np.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m)), len(xyz))
+        # the distance to the seen surface (a robust nearest point), not to the points' centroid:
+        # the centroid of a bed or couch lies a metre inside it, so a view from its edge would
+        # count as a view from afar
+        dist = np.hypot(xyz[:, 0] - obs.pose.x_m, xyz[:, 1] - obs.pose.y_m)
+        self._views[frame] = View(frame, float(score), float(np.quantile(dist, 0.1)), len(xyz))
         self._xyz = np.vstack([self._xyz, xyz.astype(np.float32)])
         self._score = np.concatenate([self._score, np.full(len(xyz), score, np.float32)])
         self._frame = np.concatenate([self._frame, np.full(len(xyz), frame, np.int64)])
