@@ -6,14 +6,27 @@ detection, lift the matched goal keypoints into 3D goal points; then decide, as 
 state machine (``agent.modes``: look around, explore, approach, verify, rescan, stop), one
 frozen ``Decision`` that goes into the step's ``AgentRecord``.
 
-Beyond the paper (DESIGN section 2, end), each configurable in ``PolicyConfig``:
+Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
+``FrontierConfig``), all off by default so that each can be measured alone:
 
-* a full look-around at the start (``look_around_turns``);
-* verification: a candidate is stopped at only after a detection from within
-  ``verify_range_m`` of it; at the stop point without one, the agent scans left and right,
-  and rejects (blacklists) the candidate when nothing confirms it;
-* rejected and unreachable candidates are blacklisted on the map, so their points and
-  later points there are ignored and exploration resumes.
+* a full look-around at the start (``look_around_turns``; on in both deployments);
+* ``verify`` with ``verify_by="close_range"``: a candidate is stopped at only after a
+  detection from within ``verify_range_m`` of it; at the stop point without one, the agent
+  scans left and right and rejects (blacklists) the candidate when nothing confirms it;
+* ``verify`` with ``verify_by="approach"``: a candidate without such a detection is
+  *potential*; the agent goes to a ring around it (outside the distance at which the level
+  camera loses the candidate's top), faces it and looks ``verify_views`` times; a detection
+  confirms it, none rejects it (IEVE's explore-verify-exploit, Lei et al. CVPR 2024);
+* candidate memory with potential evidence (``potential_tau_ratio`` < 1): frames scoring
+  below tau but above the ratio add goal points too; the candidate they form is potential
+  and is verified by approach (``agent.candidates``; every candidate, rejected ones
+  included, is in the ``AgentRecord``);
+* where to stop (``stop_rule="core"``): measured from the candidate's core cells rather than
+  its nearest (possibly stray) one, and only where the map shows a line of sight to it;
+* exploration by information gain (``frontier.gain_weight_m``).
+
+Rejected and unreachable candidates are blacklisted on the map (``GridMap.blacklist_cells``),
+so their points and later points there are ignored and exploration resumes.
 
 Oracle ablations are injected callables (the agent never imports sim/):
 ``oracle_reid(obs) -> bool`` (goal visible), ``oracle_ego_mask(obs) -> (H, W) bool``
