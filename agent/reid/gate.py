@@ -76,12 +76,24 @@ def mnn_count(sim_obs_goal: Any, min_cosine: float) -> int:
 
 
 def gate_threshold_for(full_scores: np.ndarray, gate_scores: np.ndarray, tau: float,
-                       max_drop: float = 0.01) -> tuple[float, dict[str, float]]:
-    """The largest gate threshold that drops at most ``max_drop`` of the frames the full matcher
-    scores at or above ``tau`` (a frame is dropped when its gate score is below the threshold).
+                       max_drop: float = 0.01, near_tau: float = 0.5) -> tuple[float, dict[str, float]]:
+    """The gate threshold for one source of frames: at most ``max_drop`` of the frames the full
+    matcher scores at or above ``tau`` may fall below it (a frame is dropped when its gate score
+    is below the threshold).
 
-    Returns the threshold and the figures behind it: positives, the share dropped, and the share
-    of all frames the gate lets through (what the full matcher still costs).
+    Two estimates, the smaller one wins:
+
+    * direct: the largest threshold that drops at most ``max_drop`` of the positives. With few
+      positives (fewer than ``3 / max_drop``) it is decided by the lowest one or two of them and
+      says little about the next frame;
+    * bound: the gate score as a share of the full score, at its ``max_drop`` quantile over the
+      frames scoring at least ``near_tau * tau`` (more frames than the positives alone, and the
+      ratio is lowest at modest full scores), times tau: what a frame that just reaches tau can
+      be expected to score at least.
+
+    Returns the threshold and the figures behind it: both estimates, the positives, the share
+    of positives dropped, and the share of all frames the gate lets through (what the full
+    matcher still costs).
     """
     full = np.asarray(full_scores, np.float64)
     gate = np.asarray(gate_scores, np.float64)
@@ -91,11 +103,14 @@ def gate_threshold_for(full_scores: np.ndarray, gate_scores: np.ndarray, tau: fl
     if len(pos) == 0:
         raise ValueError(f"no frame reaches tau={tau:.3g}: cannot calibrate the gate")
     allowed = int(np.floor(max_drop * len(pos)))  # positives that may fall below the threshold
-    ordered = np.sort(pos)
     # Gate scores are counts: a threshold t drops the positives with score < t. Taking the
     # (allowed+1)-th smallest score as t drops at most `allowed` of them (ties stay above).
-    threshold = float(ordered[allowed])
-    dropped = float(np.mean(pos < threshold))
-    passed = float(np.mean(gate >= threshold))
-    return threshold, {"positives": float(len(pos)), "dropped_share": dropped, "pass_share": passed,
-                       "frames": float(len(full))}
+    direct = float(np.sort(pos)[allowed])
+    near = full >= near_tau * tau
+    ratio = gate[near] / full[near]
+    bound = float(np.floor(np.quantile(ratio, max_drop, method="lower") * tau))
+    threshold = min(direct, bound)
+    return threshold, {"positives": float(len(pos)), "direct": direct, "bound": bound,
+                       "near_tau_frames": float(near.sum()),
+                       "dropped_share": float(np.mean(pos < threshold)),
+                       "pass_share": float(np.mean(gate >= threshold)), "frames": float(len(full))}

@@ -72,18 +72,29 @@ def resolve_tau(config: ReIDConfig) -> float:
 
 
 def resolve_gate_threshold(config: ReIDConfig) -> float | None:
-    """The gate threshold in force (None: gate off), from the config or the calibration file."""
+    """The gate threshold in force (None: gate off), from the config or the calibration file.
+
+    The gate is calibrated for one tau (it keeps the frames that could reach it). A threshold
+    from a calibration file therefore holds only for that file's tau or a higher one; with a
+    lower explicit tau, or a file without a gate threshold (an operator's own calibration), the
+    gate is switched off with a warning: it must never change what the agent decides.
+    """
     if not config.gate:
         return None
     if config.gate_threshold is not None:
         return float(config.gate_threshold)
     path, data = _calibration(config)
     if "gate_threshold" not in data:
-        raise ValueError(f"reid.gate is on but {path} has no gate_threshold: run `imgnav calibrate --gate "
-                         f"--matcher {config.matcher}`, set reid.gate_threshold, or set reid.gate: false")
+        log.warning("reid.gate is on but %s has no gate_threshold (run `imgnav calibrate --gate`, or set "
+                    "reid.gate_threshold): the gate is off, every frame gets the full matcher", path)
+        return None
     if abs(float(data.get("gate_min_cosine", config.gate_min_cosine)) - config.gate_min_cosine) > 1e-9:
         raise ValueError(f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
                          f"the config asks for {config.gate_min_cosine}")
+    if config.tau is not None and float(config.tau) < float(data["tau"]):
+        log.warning("reid.tau %.4g is below the tau %.4g the gate threshold in %s was calibrated for: "
+                    "the gate is off", config.tau, float(data["tau"]), path)
+        return None
     return float(data["gate_threshold"])
 
 

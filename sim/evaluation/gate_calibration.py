@@ -100,7 +100,7 @@ def plot_gate(path: Path, sources: dict[str, tuple[np.ndarray, np.ndarray]], tau
         dropped = float(np.mean(gate[pos] < threshold)) if pos.any() else float("nan")
         passed = float(np.mean(gate >= threshold)) if len(gate) else float("nan")
         ax.set(xlabel="gate score (mutual nearest neighbours)", ylabel="full score (sum of confidences)",
-               title=f"{name}: drops {dropped:.1%} of >= tau, runs the matcher on {passed:.1%}")
+               title=f"{name}\ndrops {dropped:.1%} of >= tau; full matcher on {passed:.1%}", )
         ax.set_xscale("symlog", linthresh=10)
         ax.set_yscale("symlog", linthresh=10)
         ax.grid(alpha=0.3)

@@ -1,0 +1,155 @@
+"""The re-ID gate (agent/reid/gate.py): mutual-nearest-neighbour counts on hand-made descriptor
+sets, its threshold calibration, and the identifier skipping the full matcher below it."""
+
+import json
+
+import numpy as np
+import pytest
+
+from agent.reid import ReIDConfig, ReIdentifier
+from agent.reid.base import Features, Matches
+from agent.reid.gate import MNNGate, gate_threshold_for, mnn_count
+from agent.reid.identifier import resolve_gate_threshold
+
+
+def unit_rows(rng, n, d=64):
+    x = rng.normal(size=(n, d)).astype(np.float32)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def test_mnn_counts_only_mutual_and_similar_pairs():
+    e = np.eye(4, dtype=np.float32)
+    goal = e[[0, 1, 2]]
+    # obs row 0 = goal 0 exactly; rows 1 and 2 both nearest to goal 1 (only one is mutual);
+    # row 3 is orthogonal to every goal row (similarity 0, below the threshold)
+    obs = np.stack([e[0], 0.9 * e[1] + 0.1 * e[2], 0.95 * e[1] + 0.05 * e[3], e[3]])
+    obs /= np.linalg.norm(obs, axis=1, keepdims=True)
+    sim = obs @ goal.T
+    assert mnn_count(sim, 0.82) == 2  # (0, 0) and (2, 1); row 1 loses goal 1 to row 2
+    assert mnn_count(sim, 0.999) == 1  # only the exact copy
+    # no similarity bound: still 2, goal 2's nearest row (1) prefers goal 1, and row 3's nearest
+    # goal (0) prefers row 0
+    assert mnn_count(sim, -1.0) == 2
+
+
+def test_gate_passes_a_view_of_the_goal_and_gates_an_unrelated_one():
+    rng = np.random.default_rng(0)
+    goal = unit_rows(rng, 300)
+    # a view of the goal: 120 of its descriptors, perturbed (viewpoint change), among 400 others
+    seen = goal[rng.choice(300, 120, replace=False)] + rng.normal(scale=0.04, size=(120, 64)).astype(np.float32)
+    view = np.vstack([seen, unit_rows(rng, 400)])
+    unrelated = unit_rows(rng, 520)
+    gate = MNNGate(0.82)
+    gate.set_goal(goal)
+    s_view, s_unrelated = gate.score(view), gate.score(unrelated)
+    assert s_view >= 110  # (almost) all 120 shared descriptors are mutual and similar
+    assert s_unrelated == 0  # random 64-d unit vectors never reach cosine 0.82
+    # descriptors need not be normalised (SIFT's are not): the score is scale-free
+    assert gate.score(3.0 * view) == s_view
+    assert gate.score(np.zeros((0, 64), np.float32)) == 0.0
+
+
+def test_gate_needs_a_goal_first():
+    with pytest.raises(RuntimeError):
+        MNNGate().score(np.ones((3, 8), np.float32))
+
+
+def test_threshold_drops_at_most_the_allowed_share_of_positives():
+    rng = np.random.default_rng(1)
+    # gate score about twice the full score (as on goal-image pairs), 3300 frames, tau 75
+    full = np.concatenate([rng.uniform(80, 400, 300), rng.uniform(0, 70, 3000)])
+    gate = np.floor(full * rng.uniform(1.8, 2.2, len(full)))
+    thr, stats = gate_threshold_for(full, gate, tau=75.0, max_drop=0.01)
+    pos_gate = gate[full >= 75.0]
+    assert np.mean(pos_gate < thr) <= 0.01
+    assert stats["positives"] == 300 and stats["dropped_share"] == pytest.approx(np.mean(pos_gate < thr))
+    # the direct estimate is the largest threshold within the bound: one more drops more than 1%
+    assert np.mean(pos_gate < stats["direct"] + 1) > 0.01
+    # the ratio bound: 1.8 x 75 = 135 at worst; both estimates near it, the smaller one wins
+    assert 125 <= stats["bound"] <= 135 and thr == min(stats["direct"], stats["bound"])
+    assert 0 < stats["pass_share"] < 1
+    with pytest.raises(ValueError, match="no frame reaches tau"):
+        gate_threshold_for(np.zeros(5), np.zeros(5), tau=1.0)
+
+
+def test_few_positives_are_covered_by_the_ratio_bound():
+    # 20 positives that all happen to score high, but frames just below tau show that a frame
+    # reaching tau can have a gate score of only half its full score
+    full = np.array([100.0] * 20 + [60.0] * 50)
+    gate = np.array([200.0] * 20 + [30.0] * 50)
+    thr, stats = gate_threshold_for(full, gate, tau=75.0, max_drop=0.01)
+    assert stats["direct"] == 200.0  # what the positives alone would say
+    assert stats["bound"] == 37.0 and thr == 37.0  # floor(0.5 x 75)
+
+
+class VectorMatcher:
+    """Features are given descriptor sets; ``match`` pairs identical rows (confidence 1) and
+    counts its calls, so a test sees whether the full matcher ran."""
+
+    name = "xfeat_lighterglue"
+
+    def __init__(self, images):
+        self.images = images  # id -> (N, D) descriptors
+        self.match_calls = 0
+
+    def extract(self, rgb, max_keypoints):
+        desc = self.images[int(rgb[0, 0, 0])]
+        return Features(np.zeros((len(desc), 2), np.float32), desc, (rgb.shape[1], rgb.shape[0]))
+
+    def match(self, goal, obs):
+        self.match_calls += 1
+        sim = obs.descriptors @ goal.descriptors.T
+        i_obs, i_goal = np.nonzero(sim > 0.999)
+        return Matches(i_goal.astype(np.int64), i_obs.astype(np.int64), np.ones(len(i_goal), np.float32))
+
+
+def image(k):
+    return np.full((4, 4, 3), k, np.uint8)
+
+
+def test_identifier_skips_the_full_matcher_below_the_gate_and_runs_it_above():
+    rng = np.random.default_rng(2)
+    goal = unit_rows(rng, 50)
+    imgs = {0: goal, 1: np.vstack([goal[:30], unit_rows(rng, 20)]), 2: unit_rows(rng, 50)}
+    m = VectorMatcher(imgs)
+    reid = ReIdentifier(ReIDConfig(tau=5.0, gate=True, gate_threshold=10.0), matcher=m)
+    reid.set_goal(image(0))
+    r_goal = reid.compare(image(1))
+    assert r_goal.full_matcher and r_goal.gate_score == 30 and r_goal.score == 30 and m.match_calls == 1
+    r_other = reid.compare(image(2))
+    assert not r_other.full_matcher and r_other.gate_score == 0 and r_other.score == 0.0
+    assert len(r_other.matches) == 0 and r_other.obs_xy.shape == (0, 2) and m.match_calls == 1
+    # gate off: the full matcher runs on every frame; shadow mode still reports the gate score
+    off = ReIdentifier(ReIDConfig(tau=5.0, gate=False, gate_shadow=True), matcher=m)
+    off.set_goal(image(0))
+    r = off.compare(image(2))
+    assert r.full_matcher and r.gate_score == 0 and m.match_calls == 2
+    plain = ReIdentifier(ReIDConfig(tau=5.0), matcher=m)
+    plain.set_goal(image(0))
+    assert plain.compare(image(2)).gate_score is None and m.match_calls == 3
+
+
+def test_gate_threshold_from_config_or_calibration_file(tmp_path):
+    assert resolve_gate_threshold(ReIDConfig(gate=False)) is None
+    assert resolve_gate_threshold(ReIDConfig(gate=True, gate_threshold=12.0)) == 12.0
+    f = tmp_path / "cal.json"
+    # an operator's calibration without a gate threshold: gate off (never a changed decision)
+    f.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0}))
+    assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f))) is None
+    f.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0,
+                             "gate_threshold": 21.0, "gate_min_cosine": 0.82}))
+    assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 21.0
+    # the threshold holds for its tau or a higher one, not for a lower explicit tau
+    assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=90.0)) == 21.0
+    assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=6.0)) is None
+    with pytest.raises(ValueError, match="min_cosine"):
+        resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_min_cosine=0.9))
+
+
+def test_both_deployments_gate_by_default_and_the_packaged_calibration_has_a_threshold():
+    from agent.config import load_agent_config
+
+    for name in ("sim", "stretch"):
+        cfg = load_agent_config(name).reid
+        assert cfg.gate is True
+        assert resolve_gate_threshold(cfg) > 0
