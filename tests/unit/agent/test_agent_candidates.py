@@ -1,0 +1,53 @@
+"""Candidate memory: a cluster's views decide its state; rejected candidates stay in the record."""
+
+import numpy as np
+
+from agent.candidates import CandidateMemory, CandidateState, evaluate
+from agent.localisation import GoalLocaliser, LocalisationConfig
+from agent.mapping import GridMap
+from agent.types import Pose2D
+from test_agent_localisation import BOXES, obs_and_ids
+
+
+def _add_view(loc, pose, step, score):
+    obs, ids = obs_and_ids(pose)
+    obs = type(obs)(rgb=obs.rgb, depth_m=obs.depth_m, pose=pose, intrinsics=obs.intrinsics,
+                    goal_image=obs.goal_image, step=step)
+    return loc.add_mask_pixels(obs, ids == len(BOXES) - 1, score)
+
+
+def test_views_and_states():
+    loc = GoalLocaliser(LocalisationConfig())
+    # the goal box spans x 3.0-3.6: a detection from the start (3 m from its face), then a
+    # weak view from 1.5 m
+    assert len(_add_view(loc, Pose2D(0.0, 0.0, 0.0), 0, 80.0))
+    (cl,) = loc.candidates(GridMap())
+    assert cl.frames == (0,) and cl.id == 0
+    v = loc.view(0)
+    assert v is not None and v.score == 80.0 and 2.9 < v.distance_m < 3.1  # to the box's near face
+    # any detection confirms without verification; with it, only one from within range
+    assert evaluate(cl, loc, tau=75.0, verify_range_m=None).state == CandidateState.CONFIRMED
+    far = evaluate(cl, loc, tau=75.0, verify_range_m=2.0)
+    assert far.state == CandidateState.POTENTIAL and far.best_score == 80.0
+    assert len(_add_view(loc, Pose2D(1.5, 0.0, 0.0), 5, 50.0))
+    (cl,) = loc.candidates(GridMap())
+    assert cl.frames == (0, 5) and cl.id == 0  # the same candidate, two views
+    c = evaluate(cl, loc, tau=75.0, verify_range_m=2.0)
+    assert c.state == CandidateState.POTENTIAL and c.best_score_within(2.0) == 50.0
+    assert len(_add_view(loc, Pose2D(1.6, 0.1, 0.0), 6, 90.0))
+    (cl,) = loc.candidates(GridMap())
+    assert evaluate(cl, loc, tau=75.0, verify_range_m=2.0).state == CandidateState.CONFIRMED
+
+
+def test_memory_reports_live_and_rejected_candidates():
+    loc = GoalLocaliser(LocalisationConfig())
+    _add_view(loc, Pose2D(0.0, 0.0, 0.0), 3, 80.0)
+    (cl,) = loc.candidates(GridMap())
+    mem = CandidateMemory()
+    live = [evaluate(cl, loc, 75.0, None)]
+    (info,) = mem.infos(live, (0.0, 0.0))
+    assert info.state == "confirmed" and info.n_views == 1 and info.best_score == 80.0
+    assert 3.0 < info.distance_m < 3.7
+    mem.reject(live[0], (0.0, 0.0))
+    (info,) = mem.infos([], (1.0, 0.0))
+    assert info.state == "rejected" and info.id == cl.id and info.distance_m < 2.7
