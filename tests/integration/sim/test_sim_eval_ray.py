@@ -50,7 +50,8 @@ def local_records(two_homes: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 
 @pytest.fixture(scope="module")
 def cluster():
-    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    # workers at the test's priority (Ray's default nice 15 crawls on a busy shared machine)
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "_system_config": {"worker_niceness": 0}})
     c.add_node(num_cpus=1)
     c.wait_for_nodes()
     yield c
