@@ -112,6 +112,7 @@ def step_extras(rec: "StepRecord", config: ReplayConfig) -> dict[str, Any]:
         "plan": np.round(plan, 3).tolist(),
         "target": None if r.target_xy_m is None else [round(float(v), 3) for v in r.target_xy_m],
         "target_kind": r.target_kind,
+        "explored_m2": None if r.map is None else round(float(r.map.explored.sum()) * r.map.resolution_m**2, 2),
     }
 
 

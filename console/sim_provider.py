@@ -204,6 +204,7 @@ class SimProvider:
                             "category": g.category,
                             "label": g.label,
                             "url": f"/api/sim/gallery/{h.id}/{g.file}",
+                            "default_start": _search_start(h, g),
                         }
                         for g in h.gallery
                     ],
@@ -340,6 +341,18 @@ class SimProvider:
 
     def close(self) -> None:
         return None
+
+
+def _search_start(home: HomeEntry, g: GalleryItem) -> str | None:
+    """The room-middle start farthest from the item's object, so that a demo makes a real search
+    (the first start can be right next to the first gallery object). The object's position is
+    approximated by its "near" start (1.2-2.2 m from it)."""
+    near = next((s for s in home.starts if s.id == f"n{g.instance_id}"), None)
+    rooms = [s for s in home.starts if s.id.startswith("r")]
+    if near is None or not rooms:
+        return None
+    far = max(rooms, key=lambda s: math.hypot(s.pose_world[0] - near.pose_world[0], s.pose_world[1] - near.pose_world[1]))
+    return far.id
 
 
 def _target(g: GalleryItem, identified_by: str) -> dict[str, Any]:

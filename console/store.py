@@ -304,6 +304,11 @@ class RunStore:
             ).fetchone()
         return None if row is None else (int(row["step"]), bytes(row["map_blob"]))
 
+    def replay_latest_step(self, run_id: str) -> int | None:
+        with self._lock:
+            row = self._db.execute("SELECT MAX(step) m FROM replay_steps WHERE run_id=?", (run_id,)).fetchone()
+        return None if row is None or row["m"] is None else int(row["m"])
+
     def replay_map_steps(self, run_id: str) -> list[int]:
         with self._lock:
             rows = self._db.execute("SELECT step FROM replay_maps WHERE run_id=? ORDER BY step", (run_id,)).fetchall()

@@ -39,10 +39,14 @@ import numpy as np
 
 from console.pictures import depth_rgb, fit_height, layers_rgb, match_picture
 from console.security import LOOPBACK_NAMES, host_allowed, origin_allowed
+from console.words import step_words
 from agent.types import Pose2D
 from console.session import Outcome, StepRecord
 
 logger = logging.getLogger(__name__)
+
+
+CANDIDATE_RGB = {"potential": (255, 140, 0), "confirmed": (0, 180, 80), "rejected": (154, 90, 190)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,7 +135,7 @@ class Viewer:
         # Before any client can have finished its handshake: reject foreign Host/Origin.
         self.server._websock_server.on_client_connect(self._check_handshake)
         # The share button asks an outside service for a public tunnel: never offer it.
-        self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="medium")
+        self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")
         self.server.scene.set_up_direction("+z")
         # Look down on the start area from behind and above (a home is ~5-10 m across).
         self.server.initial_camera.position = (-4.0, -4.0, 7.0)
@@ -183,6 +187,7 @@ class Viewer:
         self._target = None
         self._occupancy = None
         self._obstacles = None
+        self._candidates = None
 
     def _build_gui(self) -> None:
         gui = self.server.gui
@@ -342,7 +347,7 @@ class Viewer:
         self._replay["slider"] = slider
 
     def _replay_step(self, step: int) -> None:
-        from agent.types import CAMERA_HEIGHT_M, SIM_INTRINSICS, Action, AgentRecord
+        from agent.types import CAMERA_HEIGHT_M, SIM_INTRINSICS, Action, AgentRecord, CandidateInfo
         from console.replay import decode_map
         from console.words import step_words
 
@@ -366,6 +371,10 @@ class Viewer:
             target_kind=ex.get("target_kind"),
             plan_xy_m=np.asarray(ex.get("plan") or np.zeros((0, 2)), np.float32).reshape(-1, 2),
             map=snapshot,
+            candidates=tuple(
+                CandidateInfo(c["id"], c["state"], tuple(c["xy_m"]), c["n_views"], c["best_score"], c["distance_m"])
+                for c in ex.get("candidates", [])
+            ),
         )
         upto = steps[: step + 1]
         rec = StepRecord(
@@ -381,10 +390,12 @@ class Viewer:
         self.replay_step = me["step"]
 
     def _clear_scene(self) -> None:
-        for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles):
+        for handle in (self._trajectory, self._plan, self._goal_points, self._target, self._occupancy, self._obstacles,
+                       self._candidates):
             if handle is not None:
                 handle.remove()
         self._trajectory = self._plan = self._goal_points = self._target = self._occupancy = self._obstacles = None
+        self._candidates = None
 
     def _end_replay(self) -> None:
         if self._replay_folder is not None:
@@ -468,9 +479,25 @@ class Viewer:
                     self._target.visible = True
             elif self._target is not None:
                 self._target.visible = False
+            self._publish_candidates(getattr(r, "candidates", ()) if r is not None else ())
             self._publish_images(rec, replay=replay)
             if with_map:
                 self._publish_map(rec)
+
+    def _publish_candidates(self, candidates: Any) -> None:
+        """Goal candidates as spheres: potential orange, confirmed green, rejected purple."""
+        pts = np.array([[c.xy_m[0], c.xy_m[1], 0.35] for c in candidates], np.float32).reshape(-1, 3)
+        colours = np.array([CANDIDATE_RGB.get(str(c.state), (200, 200, 200)) for c in candidates], np.uint8).reshape(-1, 3)
+        if not len(pts):
+            if self._candidates is not None:
+                self._candidates.visible = False
+            return
+        if self._candidates is None:
+            self._candidates = self.server.scene.add_point_cloud("/candidates", pts, colours, point_size=0.22, point_shape="circle")
+        else:
+            self._candidates.points = pts
+            self._candidates.colors = colours
+            self._candidates.visible = True
 
     def _publish_pose(self, rec: StepRecord) -> None:
         p = rec.pose
@@ -484,15 +511,25 @@ class Viewer:
         self._frustum.image = fit_height(rec.rgb, 160)
         self._frustum.visible = True
         r = rec.record
-        mode = "" if r is None else f" - {r.mode}: {r.reason}"
-        score = "" if r is None or r.reid_score is None else f" - score {r.reid_score:.1f}"
-        tau = "" if r is None or r.reid_tau is None else f" / tau {r.reid_tau:.1f}"
-        self._status.content = f"**Run {rec.run_id}** - step {rec.step} {rec.action.name}{mode}{score}{tau}"
+        # Step numbers count actions from 1, as the pages do.
+        self._status.content = f"**Run {rec.run_id}** - " + step_words(
+            {
+                "step": rec.step,
+                "mode": None if r is None else str(r.mode),
+                "reason": None if r is None else r.reason,
+                "action_name": rec.action.name,
+                "reid_score": None if r is None else r.reid_score,
+                "reid_tau": None if r is None else r.reid_tau,
+            }
+        )
 
     def _publish_images(self, rec: StepRecord, replay: bool = False) -> None:
         h = self.config.image_height_px
         self._rgb_img.image = fit_height(rec.rgb, h)
-        if not replay:  # a replay keeps the camera thumbnail only (no depth, no matches)
+        if replay:  # a replay keeps the camera thumbnail only (no depth, no matches)
+            self._depth_img.image = np.full((8, 8, 3), 200, np.uint8)
+            self._match_img.image = np.full((8, 8, 3), 200, np.uint8)
+        else:
             self._depth_img.image = fit_height(depth_rgb(rec.depth_m), h)
         r = rec.record
         if r is not None and not replay:

@@ -68,13 +68,72 @@ const imgnav = (() => {
     return String(v);
   }
 
-  // Follow a server-sent-event stream; returns a function that closes it.
-  function follow(url, onEvent) {
+  // Follow a server-sent-event stream; returns a function that closes it. onConnection(true|false)
+  // says whether the console is reachable (EventSource reconnects by itself).
+  function follow(url, onEvent, onConnection) {
     const source = new EventSource(url);
     for (const kind of ["status", "step", "log"]) {
       source.addEventListener(kind, (ev) => onEvent(JSON.parse(ev.data)));
     }
+    if (onConnection) {
+      source.addEventListener("open", () => onConnection(true));
+      source.addEventListener("error", () => onConnection(false));
+    }
     return () => source.close();
+  }
+
+  // The agent's modes and actions in words (console/words.py says the same on the server).
+  const MODE_WORDS = {
+    look_around: "looking around", explore: "exploring", approach: "driving to the object",
+    verify: "checking the object up close", rescan: "looking around again",
+    stopped: "stopped at the object", exhausted: "gave up",
+  };
+  const ACTION_WORDS = { STOP: "stop", MOVE_FORWARD: "forward", TURN_LEFT: "turn left", TURN_RIGHT: "turn right" };
+  const modeWords = (m) => (m ? MODE_WORDS[m] || m.replace(/_/g, " ") : "");
+  const actionWords = (a) => (a ? ACTION_WORDS[a] || a.replace(/_/g, " ").toLowerCase() : "");
+
+  function duration(seconds) {
+    if (seconds === null || seconds === undefined || !isFinite(seconds)) return "-";
+    const s = Math.round(seconds);
+    if (s < 60) return `${s} s`;
+    const m = Math.floor(s / 60);
+    return m < 60 ? `${m} min ${s % 60} s` : `${Math.floor(m / 60)} h ${m % 60} min`;
+  }
+
+  // A run's outcome in words: headline badge and sentence (from the API's "summary").
+  function summary(run) {
+    const s = run.summary || { headline: run.status, sentence: "", tone: "neutral" };
+    return el("div", { class: `summary ${s.tone}` }, el("strong", { class: "headline", text: s.headline }), " ",
+      el("span", { class: "sentence", text: s.sentence }));
+  }
+
+  // Goal candidates as a table: state, views, best score, distance.
+  function candidatesTable(cands, tau) {
+    if (!cands || !cands.length) return el("p", { class: "hint", text: "No goal candidate yet." });
+    const body = el("tbody", {});
+    for (const c of cands) {
+      body.append(el("tr", { class: `cand ${c.state}` },
+        el("td", { text: `#${c.id}` }), el("td", {}, badge(c.state)),
+        el("td", { text: String(c.n_views) }),
+        el("td", { text: `${fmt(c.best_score, 1)}${tau ? ` / ${fmt(tau, 1)}` : ""}` }),
+        el("td", { text: `${fmt(c.distance_m, 1)} m` })));
+    }
+    return el("table", { class: "cands" },
+      el("thead", {}, el("tr", {}, ...["", "state", "views", "best match", "distance"].map((h) => el("th", { text: h })))), body);
+  }
+
+  // Live details of the active run, at most once a second: camera, map, candidates, words.
+  class LivePeek {
+    constructor(onData) { this.onData = onData; this.busy = false; this.last = 0; this.pending = null; }
+    offer(runId, step) {
+      this.pending = { runId, step };
+      const now = Date.now();
+      if (this.busy || now - this.last < 1000) { clearTimeout(this.timer); this.timer = setTimeout(() => this.offer(runId, step), 1000); return; }
+      this.busy = true; this.last = now;
+      const p = this.pending;
+      // the latest step whose pictures are stored (the step event can arrive just before they are)
+      getJSON(`/api/runs/${p.runId}/replay/latest`).then(this.onData).catch(() => {}).finally(() => { this.busy = false; });
+    }
   }
 
   function viewerURL(config) {
@@ -164,6 +223,8 @@ const imgnav = (() => {
           fig.classList.add("selected");
           const blob = await (await fetch(g.url)).blob();
           this.galleryItem = g.item;
+          // a start that makes a real search (not the one next to the object)
+          if (g.default_start) this.startSel.value = g.default_start;
           this.onGalleryPick(blob, g);
         });
         this.gallery.append(fig);
@@ -173,6 +234,16 @@ const imgnav = (() => {
     clearGallery() {
       this.galleryItem = "";
       if (this.gallery) for (const f of this.gallery.querySelectorAll("figure")) f.classList.remove("selected");
+    }
+
+    // Preset the form from a stored run's options ("run again with this photo").
+    preset(options) {
+      if (!options) return;
+      if (this.episodeSel && options.episode) { this.episodeSel.value = options.episode; return; }
+      if (this.homeSel && options.home) { this.homeSel.value = options.home; this.renderHome(); }
+      if (this.startSel && options.start && [...this.startSel.options].some((o) => o.value === options.start)) {
+        this.startSel.value = options.start;
+      }
     }
 
     fill(form) {
@@ -187,5 +258,8 @@ const imgnav = (() => {
     }
   }
 
-  return { token, getJSON, postForm, postJSON, el, badge, fmt, follow, viewerURL, BackendForm, describeError };
+  return {
+    token, getJSON, postForm, postJSON, el, badge, fmt, follow, viewerURL, BackendForm, describeError,
+    modeWords, actionWords, duration, summary, candidatesTable, LivePeek,
+  };
 })();

@@ -1,10 +1,11 @@
-// The desktop console: live viewer, new run, run list, run details and artifacts.
+// The desktop console: live viewer, new run, live candidates, run list (filters), a run's
+// outcome in words, its replay (here and in the 3D viewer), numbers and artifacts.
 "use strict";
 
 (async () => {
   const $ = (id) => document.getElementById(id);
   const { el, fmt, badge } = imgnav;
-  let photo = null, photoName = "goal", selected = null, activeRun = null, backendForm = null;
+  let photo = null, photoName = "goal", selected = null, activeRun = null, backendForm = null, reachable = true;
 
   const showError = (msg) => { $("error").textContent = msg || ""; };
   const log = (line) => {
@@ -16,12 +17,13 @@
   const config = await imgnav.getJSON("/api/config");
   const viewer = imgnav.viewerURL(config);
   if (viewer) { $("viewer-frame").src = viewer; $("viewer-link").href = viewer; }
-  else { $("viewer-link").hidden = true; }
+  else { $("viewer-link").hidden = true; $("legend").hidden = true; }
   if (config.token_required) {
     $("token-box").hidden = false;
     $("token").value = imgnav.token();
     $("token").addEventListener("change", () => localStorage.setItem("imgnav-token", $("token").value.trim()));
   }
+  for (const b of config.backends) $("filter-backend").append(el("option", { value: b.name, text: b.label }));
 
   function setPhoto(blob, name, fromGallery) {
     photo = blob; photoName = name;
@@ -37,26 +39,46 @@
   });
   backendForm = new imgnav.BackendForm($("backend-form"), config, (blob, g) => setPhoto(blob, g.label, true));
   await backendForm.load();
+  const fillHomes = () => {
+    const sel = $("filter-home");
+    const known = new Set([...sel.options].map((o) => o.value));
+    for (const h of (backendForm.sim && backendForm.sim.homes) || []) {
+      if (!known.has(h.id)) sel.append(el("option", { value: h.id, text: h.id }));
+    }
+  };
+  fillHomes();
+
+  function setBadge() {
+    const b = $("active-run");
+    if (!reachable) { b.replaceChildren("console unreachable"); b.className = "badge failed"; return; }
+    b.replaceChildren(activeRun ? `run ${activeRun} active` : "idle");
+    b.className = `badge ${activeRun ? "running" : ""}`;
+  }
 
   function setActive(runId) {
     activeRun = runId;
-    $("active-run").replaceChildren(runId ? `run ${runId} active` : "idle");
-    $("active-run").className = `badge ${runId ? "running" : ""}`;
+    setBadge();
     $("stop").disabled = !runId;
     $("start").disabled = !!runId || !photo;
+    $("live-card").hidden = !runId;
+    if (runId) $("live-id").textContent = runId;
   }
 
   async function refreshRuns() {
-    const data = await imgnav.getJSON("/api/runs?limit=50");
+    const q = new URLSearchParams({ limit: "50" });
+    for (const [k, id] of [["outcome", "filter-outcome"], ["home", "filter-home"], ["backend", "filter-backend"]]) {
+      if ($(id).value) q.set(k, $(id).value);
+    }
+    const data = await imgnav.getJSON(`/api/runs?${q}`);
     setActive(data.active_run);
     const body = $("runs");
     body.replaceChildren();
     for (const r of data.runs) {
-      const tr = el("tr", { "data-run": r.id },
-        el("td", { text: r.id }),
-        el("td", { text: new Date(r.created_s * 1000).toLocaleString() }),
-        el("td", {}, badge(r.status)),
-        el("td", {}, badge(r.outcome || "")),
+      const s = r.summary || {};
+      const when = new Date(r.created_s * 1000);
+      const tr = el("tr", { "data-run": r.id, title: `run ${r.id}: ${s.sentence || ""}` },
+        el("td", { text: when.toLocaleDateString() === new Date().toLocaleDateString() ? when.toLocaleTimeString() : when.toLocaleString() }),
+        el("td", {}, el("span", { class: `badge ${s.tone || ""}`, text: s.headline || r.status })),
         el("td", { text: String(r.n_steps) }),
         el("td", { text: r.metrics ? fmt(r.metrics.spl) : "-" }));
       if (r.id === selected) tr.classList.add("selected");
@@ -65,6 +87,29 @@
     }
     if (!selected && data.runs.length) showRun(data.runs[0].id);
   }
+  for (const id of ["filter-outcome", "filter-home", "filter-backend"]) $(id).addEventListener("change", () => refreshRuns());
+
+  const replay = new imgnav.Replay($("replay"), {
+    onStep: (step) => {
+      if (!$("replay-3d").checked || activeRun || !selected || !config.viewer) return;
+      imgnav.postJSON(`/api/runs/${selected}/replay/${step}/show`).catch(() => {});
+    },
+  });
+
+  function optionsWords(r) {
+    const o = r.options || {};
+    if (r.backend === "stretch") return `Hello Robot Stretch at ${o.host || "?"}, at most ${o.max_steps} steps`;
+    if (r.backend !== "sim") return `${r.backend}, at most ${o.max_steps} steps`;
+    if (o.episode) return `simulator episode ${o.episode}, at most ${o.max_steps} steps`;
+    const start = o.start === "custom" && o.start_pose_world ? `(${o.start_pose_world.map((v) => v.toFixed(2)).join(", ")})` : o.start;
+    return `simulator ${o.home || ""}, start ${start || "?"}, at most ${o.max_steps} steps`;
+  }
+  function targetWords(r) {
+    const t = r.target;
+    if (!t) return "unknown: the run is not scored";
+    const what = `${t.category || "object"} #${t.instance_id}${t.room ? ` in the ${t.room}` : ""}`;
+    return `${what} (known from ${t.identified_by || "?"})`;
+  }
 
   async function showRun(runId) {
     selected = runId;
@@ -72,25 +117,42 @@
     const r = await imgnav.getJSON(`/api/runs/${runId}`);
     $("details-card").hidden = false;
     $("details-id").textContent = r.id;
+    $("details-summary").replaceChildren(imgnav.summary(r));
     const d = $("details");
     d.replaceChildren();
     const add = (k, v) => d.append(el("dt", { text: k }), el("dd", {}, v));
-    add("Status", badge(r.status));
-    add("Outcome", el("span", {}, badge(r.outcome || ""), ` ${r.outcome_detail || ""}`));
-    add("Backend", `${r.backend} ${JSON.stringify(r.options)}`);
-    add("Target", r.target ? JSON.stringify(r.target) : "unknown (not scored)");
-    if (r.metrics) add("Metrics", Object.entries(r.metrics).map(([k, v]) => `${k} ${fmt(v)}`).join(", "));
-    add("Steps", String(r.n_steps));
-    const t = r.timings || {};
-    add("Timings", ["upload_to_first_action_s", "open_s", "reset_s", "mean_step_ms", "artifacts_s", "total_s"]
-      .filter((k) => t[k] !== undefined).map((k) => `${k} ${fmt(t[k])}`).join(", ") || "-");
+    add("Robot", optionsWords(r));
+    add("Looking for", targetWords(r));
+    add("Started", new Date((r.started_s || r.created_s) * 1000).toLocaleString());
+    if (r.outcome_detail) add("Details", r.outcome_detail);
+    const numbers = $("numbers");
+    numbers.replaceChildren();
+    const row = (k, v) => numbers.append(el("tr", {}, el("th", { text: k }), el("td", { text: v })));
+    const m = r.metrics || {};
+    if (r.metrics) {
+      row("success", fmt(m.success)); row("SPL", fmt(m.spl, 3)); row("distance to goal (NE)", `${fmt(m.ne_m)} m`);
+      if (m.path_length_m !== undefined) row("path driven", `${fmt(m.path_length_m, 1)} m`);
+      if (m.shortest_path_m !== undefined) row("shortest path", `${fmt(m.shortest_path_m, 1)} m`);
+    }
+    row("steps", String(r.n_steps));
+    for (const [k, v] of r.timings_words || []) row(k, v);
     const a = $("artifacts");
     a.replaceChildren();
     const links = el("p", {});
     for (const [name, url] of Object.entries(r.artifacts || {})) links.append(el("a", { href: url, target: "_blank", text: name }), " ");
     a.append(links);
-    for (const name of ["run.webp", "map.png", "goal.png"]) {
-      if (r.artifacts && r.artifacts[name]) a.append(el("img", { src: `${r.artifacts[name]}?t=${r.ended_s || ""}`, alt: name, loading: "lazy" }));
+    $("run-again").disabled = !(r.artifacts && Object.keys(r.artifacts).some((n) => n.startsWith("goal_upload")));
+    $("run-again").onclick = async () => {
+      const name = Object.keys(r.artifacts).find((n) => n.startsWith("goal_upload"));
+      const blob = await (await fetch(r.artifacts[name])).blob();
+      backendForm.preset(r.options);
+      setPhoto(blob, `photo of run ${r.id}`, false);
+      log(`photo of run ${r.id} ready: press Start`);
+    };
+    if (["finished", "stopped", "failed", "interrupted"].includes(r.status)) {
+      await replay.load(r.id);
+    } else {
+      $("replay").replaceChildren(el("p", { class: "hint", text: "The replay is ready when the run has ended; follow it live in the viewer." }));
     }
   }
 
@@ -106,6 +168,7 @@
       log(`run ${run.id} started`);
       selected = run.id;
       setActive(run.id);
+      $("live-words").textContent = "Preparing the robot and the agent...";
       await refreshRuns();
     } catch (e) { showError(e.message); $("start").disabled = false; }
   });
@@ -115,12 +178,21 @@
     catch (e) { showError(e.message); }
   });
 
+  const peek = new imgnav.LivePeek((s) => {
+    if (!activeRun || s.run_id && s.run_id !== activeRun) return;
+    $("live-words").textContent = s.words;
+    if (s.frame_url) $("live-frame").src = s.frame_url;
+    $("live-map").src = s.map_url;
+    $("candidates").replaceChildren(imgnav.candidatesTable(s.candidates, s.reid_tau));
+  });
+
   let refreshTimer = null;
   imgnav.follow("/api/events", (ev) => {
-    if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load(); return; }
+    if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load().then(fillHomes); return; }
     if (ev.kind === "step") {  // keep the active run's row current without reloading the list
       const row = $("runs").querySelector(`tr[data-run="${ev.run_id}"]`);
-      if (row) row.children[4].textContent = String(ev.step + 1);
+      if (row) row.children[2].textContent = String(ev.step + 1);
+      if (ev.run_id === activeRun) peek.offer(ev.run_id, ev.step);
       return;
     }
     if (ev.kind === "status") {
@@ -128,6 +200,15 @@
       clearTimeout(refreshTimer);
       refreshTimer = setTimeout(async () => { await refreshRuns(); if (selected === ev.run_id) showRun(ev.run_id); }, 150);
     }
+  }, (ok) => {
+    const was = reachable;
+    reachable = ok;
+    setBadge();
+    if (ok && !was) refreshRuns();
   });
   await refreshRuns();
-})().catch((e) => { document.getElementById("error").textContent = e.message; });
+})().catch((e) => {
+  document.getElementById("error").textContent = e.message;
+  const b = document.getElementById("active-run");
+  b.textContent = "console unreachable"; b.className = "badge failed";
+});

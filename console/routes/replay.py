@@ -68,6 +68,15 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
     )
 
 
+@router.get("/api/runs/{run_id}/replay/latest", summary="The latest recorded step of a run (live view of an active run)")
+def replay_latest(run_id: str, console: ConsoleDep) -> dict[str, Any]:
+    get_row(console, run_id)
+    step = console.store.replay_latest_step(run_id)
+    if step is None:
+        raise error(404, "no_steps", f"run {run_id} has no recorded step yet")
+    return replay_step(run_id, console, step)
+
+
 @router.get("/api/runs/{run_id}/replay/{step}", summary="One step of a run: what the agent saw, did and had in mind")
 def replay_step(run_id: str, console: ConsoleDep, step: int = StepParam) -> dict[str, Any]:
     get_row(console, run_id)
@@ -84,6 +93,7 @@ def replay_step(run_id: str, console: ConsoleDep, step: int = StepParam) -> dict
             "candidates": ex.get("candidates", []),
             "target": ex.get("target"),
             "target_kind": ex.get("target_kind"),
+            "explored_m2": ex.get("explored_m2"),
             "n_goal_points": me["n_goal_points"],
             "frame_url": f"/api/runs/{run_id}/replay/{step}/frame.jpg" if step in extras else None,
             "map_url": f"/api/runs/{run_id}/replay/{step}/map.png",

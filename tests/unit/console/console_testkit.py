@@ -65,8 +65,11 @@ def encode(rgb: np.ndarray, fmt: str, **kw: Any) -> bytes:
 class ScriptedBackend:
     """Turns left every step; poses advance; ``fail_at`` raises a BackendError."""
 
-    def __init__(self, goal: np.ndarray, fail_at: int | None = None, gate: threading.Event | None = None) -> None:
+    def __init__(
+        self, goal: np.ndarray, fail_at: int | None = None, gate: threading.Event | None = None, step_s: float = 0.0
+    ) -> None:
         self.goal = goal
+        self.step_s = step_s  # how long a move takes (a robot is not instantaneous; pages need time to look)
         self.pose = Pose2D()
         self.step = 0
         self.applied: list[Action] = []
@@ -90,6 +93,8 @@ class ScriptedBackend:
     def apply(self, action: Action) -> None:
         if self.gate is not None:
             self.gate.wait(10.0)
+        if self.step_s:
+            time.sleep(self.step_s)
         if self.fail_at is not None and self.step == self.fail_at:
             raise BackendError("disconnected", "no state for 1.2 s")
         self.applied.append(action)
@@ -166,8 +171,9 @@ class ScriptedProvider:
     name = "scripted"
     label = "Scripted test backend"
 
-    def __init__(self, stop_after: int = 5, fail_at: int | None = None) -> None:
+    def __init__(self, stop_after: int = 5, fail_at: int | None = None, step_s: float = 0.0) -> None:
         self.stop_after = stop_after
+        self.step_s = step_s
         self.fail_at = fail_at
         self.gate: threading.Event | None = None
         self.sessions: list[ScriptedSession] = []
@@ -186,6 +192,6 @@ class ScriptedProvider:
         return ResolvedRun("scripted", ScriptedOptions(form.max_steps or 1000, form.home), None)
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> ScriptedSession:
-        session = ScriptedSession(ScriptedBackend(goal_rgb, self.fail_at, self.gate), ScriptedAgent(self.stop_after))
+        session = ScriptedSession(ScriptedBackend(goal_rgb, self.fail_at, self.gate, self.step_s), ScriptedAgent(self.stop_after))
         self.sessions.append(session)
         return session

@@ -127,3 +127,9 @@ def test_viewer_shows_a_replayed_step(finished) -> None:
         assert viewer._replay is None
     finally:
         viewer.close()
+
+
+def test_latest_step_for_the_live_view(finished) -> None:
+    _, client, run_id = finished
+    latest = client.get(f"/api/runs/{run_id}/replay/latest").json()
+    assert latest["step"] == 25 and latest["frame_url"].endswith("/replay/25/frame.jpg")
