@@ -249,6 +249,20 @@ class Attribution:
         dy = np.maximum(np.maximum(y0 - pts[:, 1], pts[:, 1] - y1), 0.0)
         return float(np.median(np.hypot(dx, dy)))
 
+    def _candidates(self) -> list[dict[str, Any]]:
+        """The agent's goal candidates at the end (``AgentRecord.candidates``), each with the
+        distance from its centroid to the goal's footprint (on the goal: <= 1 m)."""
+        if self.last is None:
+            return []
+        out = []
+        x0, y0, x1, y1 = self.goal_bounds_world
+        for c in getattr(self.last, "candidates", ()):
+            x, y = self.oracle.start_pose_world.transform_xy(np.array([c.xy_m]))[0]
+            to_goal = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
+            out.append({"id": c.id, "state": c.state, "n_views": c.n_views, "best_score": round(c.best_score, 1),
+                        "to_goal_m": round(to_goal, 2)})
+        return out
+
     def cause(self, success: bool) -> str | None:
         if success:
             return None
@@ -269,6 +283,7 @@ class Attribution:
             "modiin": {
                 "goal_seen_steps": self.seen_steps,
                 "first_seen_step": self.first_seen,
+                "candidates": self._candidates(),
                 "first_detection_step": self.first_detection,
                 "detections_goal_in_view": self.det_seen,
                 "detections_goal_out_of_view": self.det_unseen,
