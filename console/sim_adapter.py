@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -63,6 +64,44 @@ def _footprints(seed: int, n_rooms: int) -> Any:
     home = generate_home(seed, n_rooms=n_rooms)
     x0, y0, x1, y1 = home.bounds_m
     return FootprintIndex(home.solid_footprints(), (x0, y0, x1, y1))
+
+
+class WorldCache:
+    """The last simulator home built, kept for the next run (the console runs one at a time).
+
+    Building a home (scene generation, PyBullet bodies, textures) is most of the time from
+    upload to the first action; ``SimBackend`` is made to share a world it does not own.
+    Used by one thread at a time: the run's worker, or the warm-up before any run."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._key: tuple | None = None
+        self._world: Any = None
+
+    def get(self, key: tuple, build: Callable[[], Any]) -> Any:
+        with self._lock:
+            if self._key != key:
+                if self._world is not None:
+                    self._world.close()
+                    self._world, self._key = None, None
+                self._world = build()
+                self._key = key
+            return self._world
+
+    def warm(self, key: tuple, build: Callable[[], Any]) -> bool:
+        """Build ``key``'s world only if none is kept: never replaces a world a run may be using."""
+        with self._lock:
+            if self._world is not None:
+                return False
+            self._world = build()
+            self._key = key
+            return True
+
+    def close(self) -> None:
+        with self._lock:
+            if self._world is not None:
+                self._world.close()
+            self._world, self._key = None, None
 
 
 def _world(seed: int, n_rooms: int) -> Any:
@@ -229,38 +268,50 @@ def open_session(
     target_instance_id: int | None,
     max_steps: int,
     agent_config_path: Path | None,
+    worlds: WorldCache | None = None,
 ) -> SimSession:
     from sim.backend import SimBackend
 
-    world = _world(home_seed, n_rooms)
+    if worlds is None:  # a world of its own, closed with the backend
+        world, owns = _world(home_seed, n_rooms), True
+    else:  # the console's warm world: kept for the next run
+        world, owns = worlds.get(("home", home_seed, n_rooms), lambda: _world(home_seed, n_rooms)), False
     try:
-        # The backend owns (and closes) the world; its step budget is the run's, so a run
-        # that spends it is over for the backend too and can be scored.
+        # The backend's step budget is the run's, so a run that spends it is over for the
+        # backend too and can be scored.
         backend = SimBackend(
             world,
             goal_rgb,
             Pose2D(*start_pose_world),
             goal_instance_id=target_instance_id,
             max_steps=max_steps,
-            owns_world=True,
+            owns_world=owns,
         )
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:
-        world.close()
+        if owns:
+            world.close()
         raise
     return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None)
 
 
-def open_episode_session(*, episode: Any, goal_rgb: np.ndarray, max_steps: int, agent_config_path: Path | None) -> SimSession:
+def open_episode_session(
+    *, episode: Any, goal_rgb: np.ndarray, max_steps: int, agent_config_path: Path | None, worlds: WorldCache | None = None
+) -> SimSession:
     """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
     from sim.backend import SimBackend
     from sim.world import SimWorld
 
-    world = SimWorld.from_seed(episode.scene_seed)
+    seed = episode.scene_seed
+    if worlds is None:
+        world, owns = SimWorld.from_seed(seed), True
+    else:
+        world, owns = worlds.get(("episode", seed), lambda: SimWorld.from_seed(seed)), False
     try:
-        backend = SimBackend.for_episode(world, episode, goal_rgb, max_steps=max_steps, owns_world=True)
+        backend = SimBackend.for_episode(world, episode, goal_rgb, max_steps=max_steps, owns_world=owns)
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:
-        world.close()
+        if owns:
+            world.close()
         raise
     return SimSession(backend, agent, agent_config, target_known=True)

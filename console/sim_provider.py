@@ -67,6 +67,7 @@ class SimProvider:
         self._progress = "not prepared yet"
         self._thread: threading.Thread | None = None
         self._episodes: Any = None
+        self._worlds: Any = None  # sim_adapter.WorldCache, made on first use (imports sim/)
         if config.episodes_dir is not None:
             from sim.episodes import load_episode_set
 
@@ -114,13 +115,22 @@ class SimProvider:
             self._ready = True
             self._progress = f"{len(homes)} homes ready (cached)"
 
-    def prepare_async(self, hub: Any | None = None) -> threading.Thread | None:
-        """Build homes and gallery in the background (no-op when cached). Progress goes to the
-        log and, as ``log`` events, to the console page."""
-        if self._ready:
-            self._log(hub, self._progress, ready=True)
-            return None
-        self._thread = threading.Thread(target=self.prepare, args=(hub,), name="sim-prepare", daemon=True)
+    def prepare_async(self, hub: Any | None = None) -> threading.Thread:
+        """Build homes and gallery in the background (skipped when cached), then the first home's
+        world for the first run. Progress goes to the log and, as ``log`` events, to the console page."""
+
+        def work() -> None:
+            if self._ready:
+                self._log(hub, self._progress, ready=True)
+            else:
+                self.prepare(hub)
+            if self._ready:
+                try:
+                    self.warm_up()
+                except Exception:  # the first run builds (and reports) it instead
+                    logger.exception("building the first simulator home ahead of the first run failed")
+
+        self._thread = threading.Thread(target=work, name="sim-prepare", daemon=True)
         self._thread.start()
         return self._thread
 
@@ -316,6 +326,28 @@ class SimProvider:
         }
         return ResolvedRun("sim", spec, target)
 
+    def worlds(self) -> Any:
+        from console import sim_adapter
+
+        with self._lock:
+            if self._worlds is None:
+                self._worlds = sim_adapter.WorldCache()
+            return self._worlds
+
+    def warm_up(self) -> float:
+        """Build the first home's world ahead of the first run; returns seconds."""
+        from console import sim_adapter
+
+        homes = self.homes
+        if not homes:
+            return 0.0
+        first = next(iter(homes.values()))
+        t0 = time.perf_counter()
+        self.worlds().warm(("home", first.seed, self.config.n_rooms), lambda: sim_adapter._world(first.seed, self.config.n_rooms))
+        seconds = time.perf_counter() - t0
+        logger.info("simulator home %s built ahead of the first run in %.1f s", first.id, seconds)
+        return seconds
+
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         from console import sim_adapter
 
@@ -327,6 +359,7 @@ class SimProvider:
                 goal_rgb=goal_rgb,
                 max_steps=spec.max_steps,
                 agent_config_path=self.config.agent_config_path,
+                worlds=self.worlds(),
             )
         target = resolved.target
         return sim_adapter.open_session(
@@ -337,10 +370,12 @@ class SimProvider:
             target_instance_id=None if target is None else int(target["instance_id"]),
             max_steps=spec.max_steps,
             agent_config_path=self.config.agent_config_path,
+            worlds=self.worlds(),
         )
 
     def close(self) -> None:
-        return None
+        if self._worlds is not None:
+            self._worlds.close()
 
 
 def _search_start(home: HomeEntry, g: GalleryItem) -> str | None:

@@ -82,7 +82,7 @@ def test_second_run_gets_409_and_stop_ends_the_first(client: TestClient, provide
     assert done["status"] == "stopped" and done["outcome"] == "stopped"
     assert provider.sessions[0].backend.closed
     assert len(provider.sessions[0].backend.applied) == done["n_steps"]  # nothing sent after the stop
-    again = client.post("/api/runs", files={"goal_image": photo()})
+    again = client.post("/api/runs", files={"goal_image": photo()}, data={"max_steps": "3"})
     assert again.status_code == 201
     wait_done(client, again.json()["id"])
 
