@@ -105,9 +105,14 @@ def build_config(args: argparse.Namespace) -> AgentConfig:
 
 
 def worker_init(args: argparse.Namespace) -> None:
+    """One evaluation worker: torch and OpenCV get the worker's share of the cores (2 workers x
+    1 thread on 2 cores), never the default of one thread per core in each worker."""
+    import cv2
     import torch
 
-    torch.set_num_threads(build_config(args).reid.num_threads)
+    threads = build_config(args).reid.num_threads
+    torch.set_num_threads(threads)
+    cv2.setNumThreads(threads)
 
 
 def make_agent(args: argparse.Namespace, oracle: Any):

@@ -45,10 +45,12 @@ the run and returns fields merged into summary.json.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import math
 import multiprocessing as mp
+import os
 import time
 import traceback
 from pathlib import Path
@@ -153,6 +155,26 @@ def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Pat
         record.update(dict(observer.finish(record)))
     backend.close()
     return record
+
+
+_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _worker_thread_env(threads: int) -> Iterator[None]:
+    """Spawned workers inherit this environment: each one's OpenMP/BLAS pools get its share of
+    the cores (read when numpy and torch load), so n workers never start n x cores threads.
+    torch's intra-op threads are set by the agent's ``worker_init``; OpenCV's below."""
+    saved = {k: os.environ.get(k) for k in _THREAD_ENV}
+    os.environ.update({k: str(threads) for k in _THREAD_ENV})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _clean_args(args: argparse.Namespace) -> argparse.Namespace:
@@ -297,8 +319,9 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
                 tasks.put(None)
             procs = [ctx.Process(target=_worker_main, args=(str(episode_dir), agent, args, fail_fast, tasks, results))
                      for _ in range(n)]
-            for p in procs:
-                p.start()
+            with _worker_thread_env(max(1, (os.cpu_count() or 1) // n)):
+                for p in procs:
+                    p.start()
             finished, fatal = 0, None
             try:
                 while finished < n:
