@@ -1,6 +1,7 @@
 """The run manager: one robot, so one active run at a time, on a worker thread.
 
-The worker runs the project's one loop (CONTRIBUTING, "Contracts"):
+The worker runs the project's one loop (CONTRIBUTING, "Contracts"; ``console.loop.run_loop``,
+with this run's step sink ``_RunSink``):
 
     obs = backend.reset(); agent.reset(obs.goal_image)
     while True:
@@ -40,6 +41,7 @@ import numpy as np
 from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
+from console.loop import LoopError, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
@@ -216,61 +218,26 @@ class RunManager:
             self.store.update_run(run_id, agent_config=dict(session.agent_config))
             if self.viewer is not None:
                 self.viewer.run_started(run_id, goal_rgb, {"backend": resolved.backend, **dict(resolved.options)})
-            t0 = time.perf_counter()
-            obs = session.backend.reset()
-            session.agent.reset(obs.goal_image)
-            timings["reset_s"] = time.perf_counter() - t0
-            trajectory: list[tuple[float, float]] = []
-            reid_history: list[tuple[int, float | None, float | None]] = []
-            reason = "budget"
+            # The project's one loop (console.loop); this run's step sink publishes every step.
+            sink = _RunSink(self, run_id, goal_rgb, writer, received_s, timings, traj_rows, part_sums)
             t_loop = t_last_step = time.perf_counter()
-            for step in range(resolved.max_steps):
-                if stop.is_set():
-                    reason = "operator"
-                    break
-                t_step = time.perf_counter()
-                action = session.agent.act(obs)
-                record = session.agent.last_record
-                session.backend.apply(action)
-                last_action = action
-                if step == 0:
-                    timings["upload_to_first_action_s"] = time.time() - received_s
-                step_ms = 1000.0 * (time.perf_counter() - t_step)
-                pose = obs.pose
-                trajectory.append((pose.x_m, pose.y_m))
-                reid_history.append(
-                    (step, None if record is None else record.reid_score, None if record is None else record.reid_tau)
-                )
-                rec = StepRecord(
-                    run_id=run_id,
-                    step=step,
-                    t_s=time.time(),
-                    action=action,
-                    pose=pose,
-                    rgb=obs.rgb,
-                    depth_m=obs.depth_m,
-                    intrinsics=obs.intrinsics,
-                    camera_height_m=obs.camera_height_m,
-                    camera_tilt_rad=obs.camera_tilt_rad,
-                    goal_rgb=goal_rgb,
-                    record=record,
-                    trajectory_xy_m=np.asarray(trajectory, np.float64),
-                    reid_history=tuple(reid_history),
-                    step_ms=step_ms,
-                )
-                row = _step_row(rec)
-                traj_rows.append(_row_dict(row))
-                for k, v in row.timings.items():
-                    part_sums[k] = part_sums.get(k, 0.0) + float(v)
-                self._publish_step(rec, row)
-                writer.add_step(rec)
-                n_steps = step + 1
-                t_last_step = time.perf_counter()
-                if action == Action.STOP:
-                    reason = "agent"
-                    stop_record = record
-                    break
-                obs = session.backend.observe()
+            try:
+                result = run_loop(session.backend, session.agent, resolved.max_steps, sinks=(sink,), should_stop=stop.is_set)
+            except LoopError as exc:  # handled below like any backend or agent failure, steps kept
+                last_action, n_steps = exc.result.last_action, exc.result.n_steps
+                timings["reset_s"] = exc.result.reset_s
+                t_loop += exc.result.reset_s
+                t_last_step = sink.t_last_step or t_loop
+                raise exc.cause from None
+            except BaseException:  # the resets failed: no loop ran
+                t_loop = None
+                raise
+            timings["reset_s"] = result.reset_s
+            t_loop += result.reset_s  # loop time starts after the resets
+            t_last_step = sink.t_last_step or t_loop
+            last_action, n_steps = result.last_action, result.n_steps
+            reason = {"agent": "agent", "budget": "budget", "stopped": "operator"}[result.end]
+            stop_record = result.last_record if result.end == "agent" else None
             if reason == "operator":
                 status = "stopped"
                 outcome = session.outcome(last_action, "operator")
@@ -412,6 +379,67 @@ def _cancel_backend(session: RunSession, why: str) -> bool:
         logger.exception("cancelling the backend's waits failed")
         return False
     return True
+
+
+class _RunSink:
+    """A run's step sink: the immutable ``StepRecord`` of each step to the store, the status
+    stream, the viewer and the artifact writer (with the replay), plus the run's timings."""
+
+    def __init__(
+        self,
+        manager: "RunManager",
+        run_id: str,
+        goal_rgb: np.ndarray,
+        writer: ArtifactWriter,
+        received_s: float,
+        timings: dict[str, Any],
+        traj_rows: list[dict[str, Any]],
+        part_sums: dict[str, float],
+    ) -> None:
+        self.manager = manager
+        self.run_id = run_id
+        self.goal_rgb = goal_rgb
+        self.writer = writer
+        self.received_s = received_s
+        self.timings = timings
+        self.traj_rows = traj_rows
+        self.part_sums = part_sums
+        self.trajectory: list[tuple[float, float]] = []
+        self.reid_history: list[tuple[int, float | None, float | None]] = []
+        self.t_last_step: float | None = None  # when the last recorded step was published
+
+    def step(self, s: LoopStep) -> None:
+        if s.step == 0:
+            self.timings["upload_to_first_action_s"] = s.t_s - self.received_s
+        record, obs = s.record, s.obs
+        self.trajectory.append((obs.pose.x_m, obs.pose.y_m))
+        self.reid_history.append(
+            (s.step, None if record is None else record.reid_score, None if record is None else record.reid_tau)
+        )
+        rec = StepRecord(
+            run_id=self.run_id,
+            step=s.step,
+            t_s=s.t_s,
+            action=s.action,
+            pose=obs.pose,
+            rgb=obs.rgb,
+            depth_m=obs.depth_m,
+            intrinsics=obs.intrinsics,
+            camera_height_m=obs.camera_height_m,
+            camera_tilt_rad=obs.camera_tilt_rad,
+            goal_rgb=self.goal_rgb,
+            record=record,
+            trajectory_xy_m=np.asarray(self.trajectory, np.float64),
+            reid_history=tuple(self.reid_history),
+            step_ms=s.step_ms,
+        )
+        row = _step_row(rec)
+        self.traj_rows.append(_row_dict(row))
+        for k, v in row.timings.items():
+            self.part_sums[k] = self.part_sums.get(k, 0.0) + float(v)
+        self.manager._publish_step(rec, row)
+        self.writer.add_step(rec)
+        self.t_last_step = time.perf_counter()
 
 
 def _finite(value: Any) -> Any:

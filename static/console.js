@@ -60,8 +60,9 @@
     setBadge();
     $("stop").disabled = !runId;
     $("start").disabled = !!runId || !photo;
-    $("live-card").hidden = !runId;
-    if (runId) $("live-id").textContent = runId;
+    // the live card stays after the run ends, with its last state, until the next run starts
+    if (runId) { $("live-card").hidden = false; $("live-id").textContent = runId; $("live-state").textContent = ""; }
+    else if (!$("live-card").hidden) $("live-state").textContent = " (ended)";
   }
 
   async function refreshRuns() {

@@ -147,14 +147,14 @@ def test_console_live_run_in_the_viewer_and_stop(browser, live_console: LiveServ
 @pytest.fixture
 def scripted_console(tmp_path: Path):
     """A console whose robot is scripted: a goal candidate appears at step 4 and is rejected at
-    step 7, every run; each move takes 0.3 s (the real agent cannot promise a detection)."""
+    step 7, every run; each move takes 0.5 s (the real agent cannot promise a detection)."""
     from console.context import Console, ConsoleConfig
     from console.viewer import ViewerConfig
     from console_testkit import ScriptedProvider
 
     console = Console(
         ConsoleConfig(data_dir=tmp_path / "data", viewer=ViewerConfig(port=0)),
-        {"scripted": ScriptedProvider(stop_after=30, step_s=0.3)},
+        {"scripted": ScriptedProvider(stop_after=30, step_s=0.5)},
     )
     server = LiveServer(console)
     yield server

@@ -171,6 +171,7 @@ def test_bad_simulator_options(client: TestClient) -> None:
 def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path: Path) -> None:
     from agent.types import Pose2D
     from console.context import Console, ConsoleConfig
+    from console.options import RunForm
     from console.sim_provider import SimProvider, SimProviderConfig
     from sim.episodes import Episode, save_episode_set
 
@@ -188,7 +189,7 @@ def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path:
         assert [e["id"] for e in desc["episodes"]] == ["val-test-0"]
         png = client.get(desc["episodes"][0]["goal_image_url"])
         assert png.status_code == 200
-        resolved = provider.resolve({"episode": "val-test-0"}, 0, "")
+        resolved = provider.resolve(RunForm(episode="val-test-0"), 0, "")
         assert resolved.target["instance_id"] == 0 and resolved.target["identified_by"] == "episode"
         assert resolved.options["home_seed"] == 12345 and resolved.options["start_pose_world"] == [1.0, 1.0, 0.0]
         for data_, fragment in [({"episode": "nope"}, "no episode"), ({"episode": "val-test-0", "home": "home-0"}, "fixes home")]:

@@ -1,0 +1,102 @@
+"""The observe-act-apply loop, written once (DESIGN section 4), with step sinks.
+
+    obs = backend.reset(); agent.reset(obs.goal_image)
+    while True:
+        action = agent.act(obs); record = agent.last_record
+        backend.apply(action)
+        (every sink gets the step)
+        if action == STOP or budget spent or should_stop(): break
+        obs = backend.observe()
+
+It needs only ``agent.types``: the console's run manager, the evaluation runner and the
+benchmarks can all call it and differ only in their sinks (store, event stream, viewer,
+artifacts, evaluation record) and their stop condition. An exception from the backend or
+the agent propagates to the caller with the steps done so far in ``LoopError.result``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, Sequence
+
+from agent.types import Action, Agent, AgentRecord, Backend, Observation
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class LoopStep:
+    """One step: the observation acted on, the action, the agent's record, timings."""
+
+    step: int
+    obs: Observation
+    action: Action
+    record: AgentRecord | None
+    t_s: float  # wall clock after ``apply`` returned
+    step_ms: float  # act + apply
+
+
+class StepSink(Protocol):
+    def step(self, s: LoopStep) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class LoopResult:
+    """end: ``agent`` (it said STOP), ``budget`` (max_steps spent) or ``stopped`` (should_stop)."""
+
+    end: str
+    n_steps: int
+    last_action: Action | None
+    last_record: AgentRecord | None
+    reset_s: float
+    loop_s: float
+    first_action_s: float | None = None  # perf_counter seconds from the call to the first apply's return
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+class LoopError(RuntimeError):
+    """The backend or the agent raised; ``result`` holds what was done before."""
+
+    def __init__(self, cause: BaseException, result: LoopResult) -> None:
+        super().__init__(f"{type(cause).__name__}: {cause}")
+        self.cause = cause
+        self.result = result
+
+
+def run_loop(
+    backend: Backend,
+    agent: Agent,
+    max_steps: int,
+    sinks: Sequence[StepSink] = (),
+    should_stop: Callable[[], bool] = lambda: False,
+) -> LoopResult:
+    """Run one episode or run to its end; see the module docstring."""
+    t_call = time.perf_counter()
+    obs = backend.reset()
+    agent.reset(obs.goal_image)
+    reset_s = time.perf_counter() - t_call
+    t_loop = time.perf_counter()
+    n, last_action, last_record, first_action_s = 0, None, None, None
+    end = "budget"
+    try:
+        for step in range(max_steps):
+            if should_stop():
+                end = "stopped"
+                break
+            t0 = time.perf_counter()
+            action = agent.act(obs)
+            record = agent.last_record
+            backend.apply(action)
+            now = time.perf_counter()
+            if first_action_s is None:
+                first_action_s = now - t_call
+            last_action, last_record, n = action, record, step + 1
+            s = LoopStep(step, obs, action, record, time.time(), 1000.0 * (now - t0))
+            for sink in sinks:
+                sink.step(s)
+            if action == Action.STOP:
+                end = "agent"
+                break
+            obs = backend.observe()
+    except Exception as exc:
+        raise LoopError(exc, LoopResult("error", n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s)) from exc
+    return LoopResult(end, n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s)
