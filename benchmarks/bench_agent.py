@@ -43,7 +43,7 @@ def main() -> int:
 
     from agent.config import load_agent_config
     from agent.policy import ModIINAgent
-    from agent.types import Action
+    from agent.loop import run_loop
     from sim.backend import SimBackend
     from sim.episodes import load_episode_set
     from sim.world import SimWorld
@@ -64,33 +64,51 @@ def main() -> int:
     from dataclasses import replace
 
     cfg = replace(cfg, reid=replace(cfg.reid, num_threads=args.threads))
-    agents = {"gate on": ModIINAgent(cfg), "gate off": ModIINAgent(replace(cfg, reid=replace(cfg.reid, gate=False)))}
-    samples = {name: {k: [] for k in PARTS} for name in agents}
-    full_runs = {name: 0 for name in agents}
+    agent = ModIINAgent(cfg)
+    shadow = ModIINAgent(replace(cfg, reid=replace(cfg.reid, gate=False)))
+    samples = {name: {k: [] for k in PARTS} for name in ("gate on", "gate off")}
+    full_runs = {name: 0 for name in samples}
+
+    def keep(name: str, rec) -> None:
+        for k in PARTS:
+            if rec is not None and k in rec.timings_ms:
+                samples[name][k].append(float(rec.timings_ms[k]))
+        full_runs[name] += bool(rec is not None and rec.reid_full_matcher)
+
+    class Timings:
+        """The driving agent's record, and the gate-off agent on the very same frame, back to back
+        (its action is discarded); a before-apply sink, so it sees the frame the agent acted on."""
+
+        def before_apply(self, s) -> None:
+            keep("gate on", s.record)
+            shadow.act(s.obs)
+            keep("gate off", shadow.last_record)
+
+        def step(self, s) -> None:
+            pass
+
+    class ShadowReset:
+        """Resets the gate-off agent with the episode's goal when the loop resets the driver."""
+
+        def __init__(self, backend) -> None:
+            self.backend = backend
+
+        def reset(self):
+            obs = self.backend.reset()
+            shadow.reset(obs.goal_image)
+            return obs
+
+        def __getattr__(self, name):
+            return getattr(self.backend, name)
+
     sim_ms: list[float] = []
     worlds: dict[int, SimWorld] = {}
     for ep in list(es.episodes)[: args.count]:
         world = worlds.get(ep.scene_seed) or worlds.setdefault(ep.scene_seed, SimWorld.from_seed(ep.scene_seed))
         backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep))
-        obs = backend.reset()
-        for agent in agents.values():
-            agent.reset(obs.goal_image)
-        for _ in range(args.steps):
-            actions = {}
-            for name, agent in agents.items():  # same frame, back to back; "gate on" drives
-                actions[name] = agent.act(obs)
-                rec = agent.last_record
-                for k in PARTS:
-                    if rec is not None and k in rec.timings_ms:
-                        samples[name][k].append(float(rec.timings_ms[k]))
-                full_runs[name] += bool(rec is not None and rec.reid_full_matcher)
-            action = actions["gate on"]
-            t = time.perf_counter()
-            backend.apply(action)
-            if backend.done or action == Action.STOP:
-                break
-            obs = backend.observe()
-            sim_ms.append((time.perf_counter() - t) * 1e3)
+        result = run_loop(ShadowReset(backend), agent, args.steps, sinks=(Timings(),))
+        if result.n_steps > 1:
+            sim_ms.append(1000 * result.backend_s / result.n_steps)
         backend.close()
     for w in worlds.values():
         w.close()
@@ -104,13 +122,14 @@ def main() -> int:
         if k not in med["gate on"] or k not in med["gate off"]:
             continue
         on, off = med["gate on"][k], med["gate off"][k]
-        p90 = {name: sorted(samples[name][k])[int(0.9 * (len(samples[name][k]) - 1))] for name in agents}
+        p90 = {name: sorted(samples[name][k])[int(0.9 * (len(samples[name][k]) - 1))] for name in samples}
         ratio = f"{on / off:6.2f}" if off > 0.05 else "     -"
         print(f"  {k:<13} {on:8.1f} ms {p90['gate on']:6.1f} ms {off:8.1f} ms {p90['gate off']:6.1f} ms   {ratio}")
     print(f"  full matcher ran on {full_runs['gate on']} of {n} frames with the gate on "
           f"({100 * full_runs['gate on'] / max(n, 1):.1f}%), {full_runs['gate off']} of {n} with it off")
     if sim_ms:
-        print(f"  (simulator render+step median {statistics.median(sim_ms):.1f} ms, not part of the agent)")
+        print(f"  (simulator apply+render per step, median over episodes {statistics.median(sim_ms):.1f} ms, "
+              "not part of the agent)")
     if tmp is not None:
         tmp.cleanup()
     return 0

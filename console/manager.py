@@ -1,6 +1,6 @@
 """The run manager: one robot, so one active run at a time, on a worker thread.
 
-The worker runs the project's one loop (CONTRIBUTING, "Contracts"; ``console.loop.run_loop``,
+The worker runs the project's one loop (CONTRIBUTING, "Contracts"; ``agent.loop.run_loop``,
 with this run's step sink ``_RunSink``):
 
     obs = backend.reset(); agent.reset(obs.goal_image)
@@ -41,7 +41,7 @@ import numpy as np
 from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
-from console.loop import LoopError, LoopStep, run_loop
+from agent.loop import LoopError, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
@@ -218,7 +218,7 @@ class RunManager:
             self.store.update_run(run_id, agent_config=dict(session.agent_config))
             if self.viewer is not None:
                 self.viewer.run_started(run_id, goal_rgb, {"backend": resolved.backend, **dict(resolved.options)})
-            # The project's one loop (console.loop); this run's step sink publishes every step.
+            # The project's one loop (agent.loop); this run's step sink publishes every step.
             sink = _RunSink(self, run_id, goal_rgb, writer, received_s, timings, traj_rows, part_sums)
             t_loop = t_last_step = time.perf_counter()
             try:

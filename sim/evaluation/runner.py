@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
-from agent.types import Action
+from agent.loop import LoopError, LoopStep, run_loop
 from sim.backend import SimBackend
 from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
 from sim.evaluation.registry import AgentSpec, get_spec
@@ -84,6 +84,20 @@ def _json_safe(v: Any) -> Any:
     return v
 
 
+class _ObserverSink:
+    """The agent's observer sees each step before the backend moves on (its oracle reads the
+    ground truth of the frame the agent acted on)."""
+
+    def __init__(self, observer: Any) -> None:
+        self.observer = observer
+
+    def before_apply(self, s: LoopStep) -> None:
+        self.observer.on_step(s.obs, s.action, s.record)
+
+    def step(self, s: LoopStep) -> None:
+        pass
+
+
 def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Path, episode: Episode, spec: AgentSpec,
                 args: argparse.Namespace, fail_fast: bool = False) -> dict[str, Any]:
     """Run one episode in an already built world; returns its record.
@@ -99,23 +113,14 @@ def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Pat
     try:
         agent = spec.make_agent(args, backend.oracle)
         observer = spec.make_observer(args, episode, backend.oracle) if spec.make_observer else None
-        ts = time.perf_counter()
-        obs = backend.reset()
-        sim_s += time.perf_counter() - ts
-        agent.reset(obs.goal_image)
-        while True:
-            ta = time.perf_counter()
-            action = Action(agent.act(obs))
-            agent_s += time.perf_counter() - ta
-            if observer is not None:
-                observer.on_step(obs, action, agent.last_record)
-            ts = time.perf_counter()
-            backend.apply(action)
-            if backend.done:
-                sim_s += time.perf_counter() - ts
-                break
-            obs = backend.observe()
-            sim_s += time.perf_counter() - ts
+        sinks = (_ObserverSink(observer),) if observer is not None else ()
+        try:
+            # the project's one loop; the episode ends when the backend says so (STOP or budget)
+            result = run_loop(backend, agent, backend.max_steps, sinks, should_stop=lambda: backend.done)
+        except LoopError as exc:
+            agent_s, sim_s = exc.result.act_s, exc.result.backend_s
+            raise exc.cause from None
+        agent_s, sim_s = result.act_s, result.backend_s
     except Exception as exc:  # agent or backend failure: recorded, counted as a failure, logged
         if fail_fast:
             raise

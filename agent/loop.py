@@ -1,15 +1,16 @@
 """The observe-act-apply loop, written once (DESIGN section 4), with step sinks.
 
     obs = backend.reset(); agent.reset(obs.goal_image)
-    while True:
+    while not should_stop():
         action = agent.act(obs); record = agent.last_record
+        (sinks that see the world as the agent saw it: before_apply)
         backend.apply(action)
         (every sink gets the step)
-        if action == STOP or budget spent or should_stop(): break
+        if action == STOP or budget spent: break
         obs = backend.observe()
 
 It needs only ``agent.types``: the console's run manager, the evaluation runner and the
-benchmarks can all call it and differ only in their sinks (store, event stream, viewer,
+benchmarks all call it and differ only in their sinks (store, event stream, viewer,
 artifacts, evaluation record) and their stop condition. An exception from the backend or
 the agent propagates to the caller with the steps done so far in ``LoopError.result``.
 """
@@ -17,7 +18,7 @@ the agent propagates to the caller with the steps done so far in ``LoopError.res
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
 from agent.types import Action, Agent, AgentRecord, Backend, Observation
@@ -36,6 +37,11 @@ class LoopStep:
 
 
 class StepSink(Protocol):
+    """Gets every step after the backend applied its action. A sink may also define
+    ``before_apply(s: LoopStep)`` (called between ``act`` and ``apply``, with ``t_s`` and
+    ``step_ms`` still 0): the evaluation's oracle attribution reads the ground truth of the
+    frame the agent acted on there, before the backend moves on."""
+
     def step(self, s: LoopStep) -> None: ...
 
 
@@ -50,7 +56,8 @@ class LoopResult:
     reset_s: float
     loop_s: float
     first_action_s: float | None = None  # perf_counter seconds from the call to the first apply's return
-    timings: dict[str, float] = field(default_factory=dict)
+    act_s: float = 0.0  # seconds in agent.act over the loop
+    backend_s: float = 0.0  # seconds in backend.apply and backend.observe over the loop
 
 
 class LoopError(RuntimeError):
@@ -76,7 +83,14 @@ def run_loop(
     reset_s = time.perf_counter() - t_call
     t_loop = time.perf_counter()
     n, last_action, last_record, first_action_s = 0, None, None, None
+    act_s = backend_s = 0.0
+    before = [sink.before_apply for sink in sinks if hasattr(sink, "before_apply")]
     end = "budget"
+
+    def result(how: str) -> LoopResult:
+        return LoopResult(how, n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s,
+                          act_s, backend_s)
+
     try:
         for step in range(max_steps):
             if should_stop():
@@ -85,18 +99,30 @@ def run_loop(
             t0 = time.perf_counter()
             action = agent.act(obs)
             record = agent.last_record
+            t1 = time.perf_counter()
+            act_s += t1 - t0
+            if before:
+                pre = LoopStep(step, obs, action, record, 0.0, 0.0)
+                for fn in before:
+                    fn(pre)
+            t2 = time.perf_counter()
             backend.apply(action)
             now = time.perf_counter()
+            backend_s += now - t2
             if first_action_s is None:
                 first_action_s = now - t_call
             last_action, last_record, n = action, record, step + 1
-            s = LoopStep(step, obs, action, record, time.time(), 1000.0 * (now - t0))
+            s = LoopStep(step, obs, action, record, time.time(), 1000.0 * ((t1 - t0) + (now - t2)))
             for sink in sinks:
                 sink.step(s)
             if action == Action.STOP:
                 end = "agent"
                 break
+            if step + 1 == max_steps:
+                break  # the budget is spent: nothing more to observe
+            t3 = time.perf_counter()
             obs = backend.observe()
+            backend_s += time.perf_counter() - t3
     except Exception as exc:
-        raise LoopError(exc, LoopResult("error", n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s)) from exc
-    return LoopResult(end, n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s)
+        raise LoopError(exc, result("error")) from exc
+    return result(end)
