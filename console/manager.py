@@ -333,6 +333,8 @@ class RunManager:
                 "reason": row.reason,
                 "reid_score": _finite(row.reid_score),
                 "reid_tau": _finite(row.reid_tau),
+                "reid_full_matcher": row.reid_full_matcher,
+                "reid_gate_score": _finite(row.reid_gate_score),
                 "goal_detected": row.goal_detected,
                 "n_goal_points": row.n_goal_points,
                 "step_ms": round(rec.step_ms, 1),
@@ -469,6 +471,8 @@ def _step_row(rec: StepRecord) -> StepRow:
         target_kind=None if r is None else r.target_kind,
         planner_error=None if r is None else r.planner_error,
         timings={"step_ms": rec.step_ms, **({} if r is None else {k: float(v) for k, v in r.timings_ms.items()})},
+        reid_full_matcher=None if r is None or r.reid_full_matcher is None else bool(r.reid_full_matcher),
+        reid_gate_score=None if r is None or r.reid_gate_score is None else float(r.reid_gate_score),
     )
 
 

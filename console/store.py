@@ -74,6 +74,8 @@ CREATE TABLE IF NOT EXISTS steps (
     target_kind     TEXT,
     planner_error   TEXT,
     timings_json    TEXT NOT NULL,
+    reid_full_matcher INTEGER,
+    reid_gate_score REAL,
     PRIMARY KEY (run_id, step)
 );
 CREATE TABLE IF NOT EXISTS replay_steps (
@@ -122,6 +124,8 @@ class StepRow:
     target_kind: str | None
     planner_error: str | None
     timings: Mapping[str, float]
+    reid_full_matcher: bool | None = None  # the full re-ID matcher ran (False: the gate skipped it)
+    reid_gate_score: float | None = None  # the gate's cheap score (None: gate off)
 
 
 class RunStore:
@@ -138,6 +142,11 @@ class RunStore:
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+            # files from before the re-ID gate (schema 2) gain its two step columns
+            have = {r["name"] for r in self._db.execute("PRAGMA table_info(steps)").fetchall()}
+            for col, kind in (("reid_full_matcher", "INTEGER"), ("reid_gate_score", "REAL")):
+                if col not in have:
+                    self._db.execute(f"ALTER TABLE steps ADD COLUMN {col} {kind}")
             self._db.execute(
                 "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
             )
@@ -245,7 +254,10 @@ class RunStore:
     def add_step(self, run_id: str, row: StepRow) -> None:
         with self._lock:
             self._db.execute(
-                "INSERT OR REPLACE INTO steps VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "INSERT OR REPLACE INTO steps (run_id, step, t_s, action, x_m, y_m, yaw_rad, mode, reason, "
+                "reid_score, reid_tau, goal_detected, n_goal_points, target_x_m, target_y_m, target_kind, "
+                "planner_error, timings_json, reid_full_matcher, reid_gate_score) "
+                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (
                     run_id,
                     row.step,
@@ -265,6 +277,8 @@ class RunStore:
                     row.target_kind,
                     row.planner_error,
                     _dump(dict(row.timings)),
+                    None if row.reid_full_matcher is None else int(row.reid_full_matcher),
+                    row.reid_gate_score,
                 ),
             )
             self._db.execute("UPDATE runs SET n_steps=? WHERE id=?", (row.step + 1, run_id))
@@ -349,6 +363,8 @@ class RunStore:
                 target_kind=r["target_kind"],
                 planner_error=r["planner_error"],
                 timings=json.loads(r["timings_json"]),
+                reid_full_matcher=None if r["reid_full_matcher"] is None else bool(r["reid_full_matcher"]),
+                reid_gate_score=r["reid_gate_score"],
             )
             for r in rows
         ]

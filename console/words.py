@@ -181,6 +181,10 @@ def step_words(step: Mapping[str, Any]) -> str:
     if action:
         parts.append(action_words(action))
     score, tau = step.get("reid_score"), step.get("reid_tau")
-    if isinstance(score, (int, float)):
+    gate = step.get("reid_gate_score")
+    if step.get("reid_full_matcher") is False and isinstance(gate, (int, float)):
+        # the cheap first stage saw too little in common with the goal photo to run the matcher
+        parts.append(f"goal not in view (quick check {gate:.0f})")
+    elif isinstance(score, (int, float)):
         parts.append(f"match {score:.1f}" + (f" of {tau:.1f} needed" if isinstance(tau, (int, float)) else ""))
     return ", ".join(parts)

@@ -50,6 +50,8 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
                 "words": step_words(s),
                 "reid_score": s["reid_score"],
                 "reid_tau": s["reid_tau"],
+                "reid_full_matcher": s.get("reid_full_matcher"),
+                "reid_gate_score": s.get("reid_gate_score"),
                 "goal_detected": s["goal_detected"],
                 "pose": [s["x_m"], s["y_m"], s["yaw_rad"]],
                 "n_candidates": len([c for c in cands if c.get("state") != "rejected"]),

@@ -63,3 +63,32 @@ def test_interrupted_run_ends_at_its_last_step_not_at_the_restart(tmp_path: Path
     assert again.get_run("d" * 12)["ended_s"] == 103.0
     assert again.get_run("e" * 12)["ended_s"] == 71.0
     assert len(again.steps("d" * 12)) == 4
+
+
+def test_steps_keep_the_re_id_gate_and_older_files_gain_its_columns(tmp_path: Path) -> None:
+    import sqlite3
+    from dataclasses import replace
+
+    db = tmp_path / "db.sqlite3"
+    store = RunStore(db)
+    store.create_run("b" * 12, backend="sim", options={}, goal={}, target=None, created_s=1.0)
+    store.add_step("b" * 12, replace(_step(0, score=0.0), reid_full_matcher=False, reid_gate_score=12.0))
+    store.add_step("b" * 12, replace(_step(1, score=80.5), reid_full_matcher=True, reid_gate_score=140.0))
+    store.add_step("b" * 12, _step(2))  # gate off: neither is known
+    got = store.steps("b" * 12)
+    assert [(s.reid_full_matcher, s.reid_gate_score) for s in got] == [(False, 12.0), (True, 140.0), (None, None)]
+    # a data directory from before the gate: its steps table lacks the columns; opening adds them
+    old = tmp_path / "old.sqlite3"
+    con = sqlite3.connect(old)
+    con.executescript(
+        "CREATE TABLE steps (run_id TEXT NOT NULL, step INTEGER NOT NULL, t_s REAL NOT NULL, action INTEGER NOT NULL,"
+        " x_m REAL NOT NULL, y_m REAL NOT NULL, yaw_rad REAL NOT NULL, mode TEXT NOT NULL, reason TEXT NOT NULL,"
+        " reid_score REAL, reid_tau REAL, goal_detected INTEGER NOT NULL, n_goal_points INTEGER NOT NULL,"
+        " target_x_m REAL, target_y_m REAL, target_kind TEXT, planner_error TEXT, timings_json TEXT NOT NULL,"
+        " PRIMARY KEY (run_id, step));"
+        "INSERT INTO steps VALUES ('cccccccccccc', 0, 1.0, 1, 0, 0, 0, 'explore', '', 3.0, 10.0, 0, 0, NULL, NULL,"
+        " NULL, NULL, '{}');")
+    con.commit()
+    con.close()
+    reopened = RunStore(old)
+    assert [(s.reid_score, s.reid_full_matcher) for s in reopened.steps("c" * 12)] == [(3.0, None)]

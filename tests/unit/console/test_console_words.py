@@ -45,6 +45,9 @@ def test_steps_and_timings() -> None:
     words = step_words({"step": 11, "mode": "explore", "reason": "frontier (nearest)", "action_name": "TURN_LEFT",
                         "reid_score": 4.13, "reid_tau": 75.3})
     assert words == "Step 12: exploring (frontier (nearest)), turn left, match 4.1 of 75.3 needed"
+    gated = step_words({"step": 3, "mode": "explore", "action_name": "MOVE_FORWARD", "reid_score": 0.0,
+                        "reid_tau": 75.3, "reid_full_matcher": False, "reid_gate_score": 12.0})
+    assert gated == "Step 4: exploring, forward, goal not in view (quick check 12)"
     assert distance_driven_m([{"x_m": 0, "y_m": 0}, {"x_m": 3, "y_m": 4}, {"x_m": 3, "y_m": 4}]) == 5.0
     rows = dict(timing_rows({"upload_to_first_action_s": 0.82, "mean_step_ms": 107.2, "total_s": 214}))
     assert rows == {"upload to first move": "0.8 s", "per step (mean)": "107 ms", "total": "3 min 34 s"}
