@@ -45,7 +45,7 @@ from agent.loop import LoopError, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
-from console.store import RunStore, StepRow
+from console.store import RunStore, StepRow, step_dict
 
 logger = logging.getLogger(__name__)
 
@@ -321,26 +321,8 @@ class RunManager:
 
     def _publish_step(self, rec: StepRecord, row: StepRow) -> None:
         self.store.add_step(rec.run_id, row)
-        self.hub.publish(
-            "step",
-            rec.run_id,
-            {
-                "status": "running",
-                "step": row.step,
-                "action": rec.action.name,
-                "pose": [row.x_m, row.y_m, row.yaw_rad],
-                "mode": row.mode,
-                "reason": row.reason,
-                "reid_score": _finite(row.reid_score),
-                "reid_tau": _finite(row.reid_tau),
-                "reid_full_matcher": row.reid_full_matcher,
-                "reid_gate_score": _finite(row.reid_gate_score),
-                "goal_detected": row.goal_detected,
-                "n_goal_points": row.n_goal_points,
-                "step_ms": round(rec.step_ms, 1),
-                "t_s": rec.t_s,
-            },
-        )
+        # the event carries the one step schema (console.store.step_dict), as the API and trajectory.json
+        self.hub.publish("step", rec.run_id, {"status": "running", **step_dict(row)})
         if self.viewer is not None:
             self.viewer.offer(rec)
 
@@ -436,7 +418,7 @@ class _RunSink:
             step_ms=s.step_ms,
         )
         row = _step_row(rec)
-        self.traj_rows.append(_row_dict(row))
+        self.traj_rows.append(step_dict(row))
         for k, v in row.timings.items():
             self.part_sums[k] = self.part_sums.get(k, 0.0) + float(v)
         self.manager._publish_step(rec, row)
@@ -474,15 +456,6 @@ def _step_row(rec: StepRecord) -> StepRow:
         reid_full_matcher=None if r is None or r.reid_full_matcher is None else bool(r.reid_full_matcher),
         reid_gate_score=None if r is None or r.reid_gate_score is None else float(r.reid_gate_score),
     )
-
-
-def _row_dict(row: StepRow) -> dict[str, Any]:
-    out = {name: getattr(row, name) for name in StepRow.__slots__}
-    out["timings"] = dict(row.timings)
-    out["action_name"] = Action(row.action).name
-    if not math.isfinite(out["yaw_rad"]):
-        out["yaw_rad"] = None
-    return out
 
 
 def start_pose_dict(pose: Pose2D) -> dict[str, float]:

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+from agent.types import Action
+
 logger = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 2  # 2: replay tables (older files gain them on open)
@@ -424,9 +426,18 @@ def _run_dict(row: sqlite3.Row) -> dict[str, Any]:
     return out
 
 
+def step_dict(row: StepRow) -> dict[str, Any]:
+    """The one step schema, as JSON: the SQLite columns (``StepRow``) plus the action's name.
+    The API's steps, the event stream's step events and trajectory.json all carry exactly this."""
+    out: dict[str, Any] = {name: getattr(row, name) for name in StepRow.__slots__}
+    out["timings"] = dict(row.timings)
+    out["action_name"] = Action(row.action).name
+    for k, v in out.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            out[k] = None
+    return out
+
+
 def as_step_rows(rows: Iterable[StepRow]) -> list[dict[str, Any]]:
-    """Step rows as plain dicts (for JSON)."""
-    return [
-        {name: getattr(r, name) if name != "timings" else dict(r.timings) for name in StepRow.__slots__}
-        for r in rows
-    ]
+    """Step rows in the one step schema (``step_dict``)."""
+    return [step_dict(r) for r in rows]

@@ -95,8 +95,8 @@
     if (ev.step !== undefined) {
       if (ev.step === 0) startedAt = startedAt || Date.now();
       $("run-step").textContent = String(ev.step + 1);
-      $("run-phase").textContent = `${imgnav.modeWords(ev.mode) || "moving"} (${imgnav.actionWords(ev.action)})`;
-      lastPose = ev.pose;
+      $("run-phase").textContent = `${imgnav.modeWords(ev.mode) || "moving"} (${imgnav.actionWords(ev.action_name)})`;
+      lastPose = [ev.x_m, ev.y_m, ev.yaw_rad];
       if (ev.reid_score !== undefined) {
         $("run-score").textContent = ev.reid_score === null ? "-" :
           `${imgnav.fmt(ev.reid_score, 1)} of ${imgnav.fmt(ev.reid_tau, 1)} needed`;

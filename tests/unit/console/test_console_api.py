@@ -69,6 +69,28 @@ def test_photo_alone_starts_a_run_that_is_recorded(client: TestClient, tmp_path:
     assert all(f.startswith(f"runs/{run['id']}/") or f.startswith("console.sqlite3") or f == "console.lock" for f in files), files
 
 
+def test_one_step_schema_for_the_api_the_event_stream_and_trajectory_json(tmp_path: Path) -> None:
+    console, client = make(tmp_path, ScriptedProvider(stop_after=3))
+    events: list[dict] = []
+    publish = console.hub.publish
+
+    def spy(kind: str, run_id: str | None, data: Any):  # every event the hub sends, as sent
+        if kind == "step":
+            events.append(dict(data))
+        return publish(kind, run_id, data)
+
+    console.hub.publish = spy  # type: ignore[method-assign]
+    with client:
+        run = client.post("/api/runs", files={"goal_image": photo()}).json()
+        done = wait_done(client, run["id"])
+        api_steps = client.get(f"/api/runs/{run['id']}", params={"steps": True}).json()["steps"]
+        traj_steps = client.get(done["artifacts"]["trajectory.json"]).json()["steps"]
+    console.close()
+    assert len(api_steps) == 4 and api_steps == traj_steps
+    assert [{k: v for k, v in e.items() if k != "status"} for e in events] == api_steps
+    assert api_steps[1]["action_name"] == "TURN_LEFT" and {"reid_full_matcher", "reid_gate_score", "timings"} <= set(api_steps[1])
+
+
 def test_second_run_gets_409_and_stop_ends_the_first(client: TestClient, provider: ScriptedProvider) -> None:
     provider.stop_after = 10_000
     provider.gate = gate = threading.Event()  # hold the robot inside apply()
