@@ -129,7 +129,14 @@ def plot_curves(path: str, curves: dict[str, Curves], title: str) -> None:
     ax2.set(xlabel="threshold tau (score >= tau)", ylabel="F-measure", ylim=(0, 1.02), title="F-measure")
     ax2.set_xscale("symlog", linthresh=1.0)
     ax2.set_xlim(left=0.0)
-    for ax in (ax1, ax2):
+    save_figure(fig, (ax1, ax2), title, path)
+
+
+def save_figure(fig, axes, title: str, path) -> None:
+    """The calibration plots' common finish: grid and legend on each axis, title, PNG, closed."""
+    import matplotlib.pyplot as plt
+
+    for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)

@@ -90,6 +90,8 @@ def plot_gate(path: Path, sources: dict[str, tuple[np.ndarray, np.ndarray]], tau
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from sim.evaluation.calibration_core import save_figure
+
     fig, axes = plt.subplots(1, len(sources), figsize=(5.5 * len(sources), 4.5), squeeze=False)
     for ax, (name, (full, gate)) in zip(axes[0], sources.items()):
         pos = full >= tau
@@ -100,15 +102,10 @@ def plot_gate(path: Path, sources: dict[str, tuple[np.ndarray, np.ndarray]], tau
         dropped = float(np.mean(gate[pos] < threshold)) if pos.any() else float("nan")
         passed = float(np.mean(gate >= threshold)) if len(gate) else float("nan")
         ax.set(xlabel="gate score (mutual nearest neighbours)", ylabel="full score (sum of confidences)",
-               title=f"{name}\ndrops {dropped:.1%} of >= tau; full matcher on {passed:.1%}", )
+               title=f"{name}\ndrops {dropped:.1%} of >= tau; full matcher on {passed:.1%}")
         ax.set_xscale("symlog", linthresh=10)
         ax.set_yscale("symlog", linthresh=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, axes[0], title, path)
 
 
 def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.Namespace) -> dict:

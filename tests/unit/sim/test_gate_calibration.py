@@ -1,0 +1,72 @@
+"""`imgnav calibrate --gate` (sim/evaluation/gate_calibration.py): recorded frames are read from
+train records only, and the threshold it writes beside tau is the one the agent then uses."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from agent.reid import ReIDConfig, ReIdentifier
+from sim.episodes import write_rgb
+from sim.evaluation import gate_calibration as gc
+
+
+def record(episode_id: str, full, gate) -> str:
+    return json.dumps({"episode_id": episode_id, "modiin": {"trace": {"reid_score": full, "gate_score": gate}}})
+
+
+def test_frames_come_from_train_records_only(tmp_path: Path) -> None:
+    p = tmp_path / "episodes.jsonl"
+    p.write_text(record("train-s0-0000-0", [1.0, 80.0, None], [3.0, 90.0, 4.0]) + "\n"
+                 + record("train-s0-0000-1", [2.0], [None]) + "\n")  # gate not recorded: skipped
+    full, gate, episodes = gc.frames_from_records([str(p)])
+    assert full.tolist() == [1.0, 80.0] and gate.tolist() == [3.0, 90.0] and episodes == 1
+    p.write_text(record("val-s0-0000-0", [1.0], [3.0]) + "\n")
+    with pytest.raises(ValueError, match="val split"):
+        gc.frames_from_records([str(p)])
+
+
+def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, monkeypatch) -> None:
+    # two "instances", three views each: crops of two natural images (XFeat finds plenty in both)
+    cache = tmp_path / "images"
+    cache.mkdir()
+    entries = []
+    for name, img in (("astro", skimage.data.astronaut()), ("coffee", skimage.data.coffee())):
+        for k, (x0, y0) in enumerate(((0, 0), (40, 30), (80, 10))):
+            view = cv2.resize(img[y0:y0 + 300, x0:x0 + 300], (160, 160))
+            write_rgb(cache / f"{name}_{k}.png", view)
+            entries.append({"path": f"{name}_{k}.png", "instance": name, "category": "tv"})
+    cal = tmp_path / "xfeat_lighterglue_{kind}.json"
+    for kind, tau in (("conf", 5.0), ("count", 10.0)):
+        Path(str(cal).format(kind=kind)).write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau}))
+    monkeypatch.setattr("agent.reid.identifier.calibration_path",
+                        lambda matcher, kind: Path(str(cal).format(kind=kind)))
+    records = tmp_path / "episodes.jsonl"
+    # recorded frames: the gate score is about 1.5 x the full score near and above tau
+    full = np.array([0.0, 1.0, 3.0, 6.0, 8.0, 20.0])
+    records.write_text(record("train-s0-0000-0", full.tolist(), (1.5 * full + 1).tolist()) + "\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    args = argparse.Namespace(matcher=["xfeat_lighterglue"], config="sim", threads=1, gate_negatives=100, seed=0,
+                              gate_records=[str(records)], gate_max_drop=0.01, no_write_agent=False)
+    result = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
+    written = json.loads(Path(str(cal).format(kind="conf")).read_text())
+    assert written["tau"] == 5.0 and written["gate_threshold"] == result["threshold"]
+    assert set(written["gate_sources"]) == {"goal-image pairs", "train-episode frames"}
+    # the recorded frames' bound: the lowest gate/full ratio among frames >= tau/2 (31/20 at full 20), x tau
+    frames = written["gate_sources"]["train-episode frames"]
+    assert frames["bound"] == np.floor(31.0 / 20.0 * 5.0) == 7 and frames["positives"] == 3
+    assert frames["direct"] == 10.0  # the lowest positive's gate score (3 positives: no drop allowed)
+    assert result["threshold"] <= frames["bound"] and (out / "xfeat_lighterglue_conf_gate.png").stat().st_size > 0
+    # what the agent then uses
+    reid = ReIdentifier(ReIDConfig(gate=True, calibration_file=str(cal).format(kind="conf"), num_threads=1))
+    assert reid.gate_threshold == result["threshold"]
+    # a second run reuses the scored pairs
+    again = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
+    assert again["threshold"] == result["threshold"]
