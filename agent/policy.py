@@ -145,7 +145,12 @@ class ModIINAgent:
 
         # 2. re-identification
         t = time.perf_counter()
-        result = self.reid.compare(obs.rgb) if self.reid is not None else None
+        # The gate only while searching: near a candidate (approaching or verifying it) every
+        # frame gets the full matcher, because close views of a large object share few
+        # mutually-nearest descriptors with the goal photo (train: a frame scoring 141 with a
+        # gate score of 23, the object covering half the image) and those frames decide.
+        searching = self._state.mode in (Mode.LOOK_AROUND, Mode.EXPLORE, Mode.RESCAN)
+        result = self.reid.compare(obs.rgb, use_gate=searching) if self.reid is not None else None
         if pc.reid_source == "oracle":
             assert self.oracle_reid is not None
             detected = bool(self.oracle_reid(obs))

@@ -157,7 +157,10 @@ class ReIdentifier:
     def extract(self, rgb: np.ndarray) -> Features:
         return self.matcher.extract(rgb, self.config.obs_max_keypoints)
 
-    def compare(self, obs_rgb: np.ndarray) -> ReIDResult:
+    def compare(self, obs_rgb: np.ndarray, use_gate: bool = True) -> ReIDResult:
+        """Score a frame against the goal. ``use_gate=False`` runs the full matcher whatever the
+        gate says (the caller knows the frame matters: the agent near a candidate); the gate
+        score is still reported."""
         if self.goal is None:
             raise RuntimeError("set_goal() first")
         t0 = time.perf_counter()
@@ -165,7 +168,7 @@ class ReIdentifier:
         t1 = time.perf_counter()
         gate_score = self._gate.score(obs.descriptors) if self._gate is not None else None
         t_gate = time.perf_counter()
-        if self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
+        if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
             return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, 0.0,
                               full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3)
         m = self.matcher.match(self.goal, obs)

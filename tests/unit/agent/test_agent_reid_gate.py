@@ -119,6 +119,10 @@ def test_identifier_skips_the_full_matcher_below_the_gate_and_runs_it_above():
     r_other = reid.compare(image(2))
     assert not r_other.full_matcher and r_other.gate_score == 0 and r_other.score == 0.0
     assert len(r_other.matches) == 0 and r_other.obs_xy.shape == (0, 2) and m.match_calls == 1
+    # the caller can ask for the full matcher whatever the gate says (the agent near a candidate)
+    forced = reid.compare(image(2), use_gate=False)
+    assert forced.full_matcher and forced.gate_score == 0 and m.match_calls == 2
+    m.match_calls = 1
     # gate off: the full matcher runs on every frame; shadow mode still reports the gate score
     off = ReIdentifier(ReIDConfig(tau=5.0, gate=False, gate_shadow=True), matcher=m)
     off.set_goal(image(0))
