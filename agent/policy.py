@@ -339,15 +339,9 @@ class ModIINAgent:
             # keep looking around: the map may open a way (a new view, a cleared collision)
             return Decision(Action.TURN_LEFT, Mode.APPROACH, "goal not reachable yet", target_kind="goal",
                             candidate=cand, planner_error=f"{exc.reason}: {exc}")
-        a = replace(a, unreachable_steps=0)
         # No progress towards the candidate for too long (blocked by what the map does not
         # show, or oscillating): give it up rather than spend the budget on it.
-        if a.target_xy_m is None or math.dist(a.target_xy_m, cand.centroid_xy_m) > 0.5:
-            a = replace(a, target_xy_m=cand.centroid_xy_m, best_distance_m=math.inf, stall_steps=0)
-        if plan.distance_m < a.best_distance_m - 0.05:
-            a = replace(a, best_distance_m=plan.distance_m, stall_steps=0)
-        else:
-            a = replace(a, stall_steps=a.stall_steps + 1)
+        a = a.after_plan(cand.centroid_xy_m, plan.distance_m)
         self._set(approach=a)
         if a.stall_steps > pc.approach_patience_steps:
             self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"no progress for {a.stall_steps} steps")
@@ -448,13 +442,7 @@ class ModIINAgent:
                 return None
             return Decision(Action.TURN_LEFT, Mode.VERIFY, "verify ring not reachable yet", target_kind="goal",
                             candidate=cl, planner_error=f"{exc.reason}: {exc}")
-        a = replace(a, unreachable_steps=0)
-        if a.target_xy_m is None or math.dist(a.target_xy_m, cl.centroid_xy_m) > 0.5:
-            a = replace(a, target_xy_m=cl.centroid_xy_m, best_distance_m=math.inf, stall_steps=0)
-        if plan.distance_m < a.best_distance_m - 0.05:
-            a = replace(a, best_distance_m=plan.distance_m, stall_steps=0)
-        else:
-            a = replace(a, stall_steps=a.stall_steps + 1)
+        a = a.after_plan(cl.centroid_xy_m, plan.distance_m)
         self._set(approach=a)
         if a.stall_steps > pc.approach_patience_steps:
             self._reject(cl, robot_xy_m=robot_xy, why=f"no progress to the verify ring for {a.stall_steps} steps")
