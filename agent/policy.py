@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from dataclasses import replace
 from typing import Callable
@@ -93,6 +94,7 @@ class ModIINAgent:
         self._record: AgentRecord | None = None
         self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
+        self._goal_mask: _Pending | None = None
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -116,7 +118,11 @@ class ModIINAgent:
         self.memory = CandidateMemory()
         if self.reid is not None:
             self.reid.set_goal(goal_image)
-        self.goal_mask = self.segmenter.mask(goal_image) if self.segmenter is not None else None
+        # The goal-image mask is needed only at the first detection (localisation), not for
+        # the first action: GrabCut (0.1-0.5 s) runs beside the first steps, on a thread of its
+        # own (OpenCV releases the GIL); the first localisation waits for it. Same mask, same
+        # decisions, shorter start.
+        self._goal_mask = _Pending(self.segmenter.mask, goal_image) if self.segmenter is not None else None
         self._prev_pose: Pose2D | None = None
         self._prev_action: Action | None = None
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
@@ -242,6 +248,11 @@ class ModIINAgent:
             return self.localiser.add_mask_pixels(obs, np.asarray(self.oracle_ego_mask(obs), bool), score)
         assert result is not None and self.goal_mask is not None
         return self.localiser.add_matches(obs, result.goal_xy, result.obs_xy, self.goal_mask, score)
+
+    @property
+    def goal_mask(self) -> np.ndarray | None:
+        """(h, w) bool mask of the goal instance in the goal image (waits for it the first time)."""
+        return self._goal_mask.result() if self._goal_mask is not None else None
 
     def _evaluate(self, clusters: list[Candidate]) -> list[GoalCandidate]:
         """Clusters -> candidates with their evidence and state (``agent.candidates``)."""
@@ -526,6 +537,29 @@ class ModIINAgent:
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
                         planner_error=error or "no_frontier")
+
+
+class _Pending:
+    """``fn(arg)`` computed on a daemon thread; ``result()`` waits for it and re-raises its error."""
+
+    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], arg: np.ndarray) -> None:
+        self._value: np.ndarray | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(fn, arg), name="goal-mask", daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable[[np.ndarray], np.ndarray], arg: np.ndarray) -> None:
+        try:
+            self._value = fn(arg)
+        except BaseException as exc:  # handed to the caller of result(), not swallowed
+            self._error = exc
+
+    def result(self) -> np.ndarray:
+        self._thread.join()
+        if self._error is not None:
+            raise RuntimeError(f"goal-image segmentation failed: {self._error}") from self._error
+        assert self._value is not None
+        return self._value
 
 
 def _ms(t0: float) -> float:

@@ -208,6 +208,7 @@ class Attribution:
         self.trace_score: list[float | None] = []  # per step: re-ID score and goal pixels in view,
         self.trace_goal_px: list[int] = []  # kept for threshold analysis on train episodes
         self.trace_gate: list[float | None] = []  # the re-ID gate's cheap score (None: not computed)
+        self.trace_goal_dist: list[float] = []  # robot centre to the goal's footprint, metres (distance-aware evidence)
         self.full_matcher_steps = 0  # steps on which the full matcher ran
         self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
 
@@ -223,6 +224,7 @@ class Attribution:
         self.trace_score.append(None if record.reid_score is None else round(float(record.reid_score), 2))
         self.trace_goal_px.append(px)
         self.trace_gate.append(None if record.reid_gate_score is None else round(float(record.reid_gate_score), 1))
+        self.trace_goal_dist.append(round(self._robot_to_goal_m(), 2))
         self.full_matcher_steps += bool(record.reid_full_matcher)
         self.gated_goal_in_view += bool(seen and record.reid_full_matcher is False)
         self.last = record
@@ -241,6 +243,12 @@ class Attribution:
             self.candidate_on_goal_steps += 1
         for k, v in record.timings_ms.items():
             self.timings.setdefault(k, []).append(float(v))
+
+    def _robot_to_goal_m(self) -> float:
+        """Euclidean distance from the robot's centre to the goal's footprint (0 inside it)."""
+        p = self.oracle.pose_world
+        x0, y0, x1, y1 = self.goal_bounds_world
+        return math.hypot(max(x0 - p.x_m, 0.0, p.x_m - x1), max(y0 - p.y_m, 0.0, p.y_m - y1))
 
     def _candidate_distance_m(self, record: AgentRecord | None = None) -> float | None:
         """Median distance of a record's candidate points (default: the last record's) to the
@@ -301,7 +309,8 @@ class Attribution:
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,
-                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate},
+                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate,
+                          "goal_dist_m": self.trace_goal_dist},
             },
         }
 
