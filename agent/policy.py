@@ -88,7 +88,9 @@ class ModIINAgent:
         self.oracle_ego_mask = oracle_ego_mask
         needs_matcher = pc.reid_source == "matcher" or pc.localisation_source == "goal_mask"
         self.tau = resolve_tau(config.reid) if pc.reid_source == "matcher" else None
-        self.reid = ReIdentifier(config.reid, matcher) if needs_matcher else None
+        # potential evidence (frames above potential_tau_ratio x tau) must get past the gate too
+        floor = pc.potential_tau_ratio if pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0 else 1.0
+        self.reid = ReIdentifier(config.reid, matcher, min_score_ratio=floor) if needs_matcher else None
         self.segmenter = GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
         self.planner = FMMPlanner(config.planner)
         self._record: AgentRecord | None = None

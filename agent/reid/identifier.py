@@ -140,11 +140,22 @@ class ReIdentifier:
     """Goal features once per run; per frame: extract, gate, and (when the gate lets the frame
     through, or the gate is off) the full matcher."""
 
-    def __init__(self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None) -> None:
+    def __init__(self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None,
+                 min_score_ratio: float = 1.0) -> None:
+        """``min_score_ratio``: the lowest full score that matters to the caller, as a share of
+        tau (1.0: detections only; the policy's potential evidence uses less). The gate's
+        threshold was calibrated to keep the frames that reach tau, from a bound linear in the
+        score (gate score >= r x full score at its 1% quantile, over frames >= tau/2), so it is
+        scaled by the same share: the frames that reach ``min_score_ratio x tau`` pass."""
         self.config = config
         self.matcher = matcher if matcher is not None else make_matcher(config)
         self.goal: Features | None = None
-        self.gate_threshold = resolve_gate_threshold(config)
+        if not 0.0 < min_score_ratio <= 1.0:
+            raise ValueError(f"min_score_ratio {min_score_ratio} must be in (0, 1]")
+        if min_score_ratio < 0.5 and config.gate:
+            log.warning("re-ID gate scaled to %.2f of tau: below the tau/2 its bound was measured from", min_score_ratio)
+        base = resolve_gate_threshold(config)
+        self.gate_threshold = None if base is None else base * min_score_ratio
         self._gate = MNNGate(config.gate_min_cosine) if (config.gate or config.gate_shadow) else None
 
     def set_goal(self, goal_rgb: np.ndarray) -> Features:

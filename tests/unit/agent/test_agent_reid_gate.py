@@ -133,6 +133,23 @@ def test_identifier_skips_the_full_matcher_below_the_gate_and_runs_it_above():
     assert plain.compare(image(2)).gate_score is None and m.match_calls == 3
 
 
+def test_gate_is_scaled_down_when_the_caller_needs_scores_below_tau():
+    # potential evidence (scores from a share of tau up) must pass the gate as detections do
+    rng = np.random.default_rng(3)
+    goal = unit_rows(rng, 50)
+    imgs = {0: goal, 1: np.vstack([goal[:12], unit_rows(rng, 38)])}  # 12 mutual neighbours
+    m = VectorMatcher(imgs)
+    full = ReIdentifier(ReIDConfig(tau=5.0, gate=True, gate_threshold=20.0), matcher=m)
+    half = ReIdentifier(ReIDConfig(tau=5.0, gate=True, gate_threshold=20.0), matcher=m, min_score_ratio=0.5)
+    assert full.gate_threshold == 20.0 and half.gate_threshold == 10.0
+    for r in (full, half):
+        r.set_goal(image(0))
+    assert not full.compare(image(1)).full_matcher
+    assert half.compare(image(1)).full_matcher and half.compare(image(1)).score == 12
+    with pytest.raises(ValueError):
+        ReIdentifier(ReIDConfig(tau=5.0), matcher=m, min_score_ratio=0.0)
+
+
 def test_gate_threshold_from_config_or_calibration_file(tmp_path):
     assert resolve_gate_threshold(ReIDConfig(gate=False)) is None
     assert resolve_gate_threshold(ReIDConfig(gate=True, gate_threshold=12.0)) == 12.0
