@@ -57,6 +57,9 @@ class PolicyConfig:
     stop_rule: Literal["radius", "core"] = "radius"
     stop_core_quantile: float = 0.7  # core cells: this share of the cells nearest to the points' median
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
+    # a rejected candidate that never scored tau (potential evidence only) blacklists only the
+    # evidence below tau around it: a later detection there still counts
+    soft_reject_potential: bool = True
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"

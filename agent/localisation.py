@@ -146,15 +146,21 @@ class GoalLocaliser:
         self._frame = np.concatenate([self._frame, np.full(len(xyz), frame, np.int64)])
         return xyz
 
-    def candidates(self, grid: GridMap) -> list[Candidate]:
-        """Clusters of the accumulated points outside blacklisted cells, largest first."""
+    def candidates(self, grid: GridMap, detection_score: float | None = None) -> list[Candidate]:
+        """Clusters of the accumulated points outside blacklisted cells, largest first. In the
+        ``potential_blacklist`` layer only points scoring at least ``detection_score`` (tau)
+        count (None: none there count)."""
         if len(self._xyz) == 0:
             return []
         grid.ensure_contains(tuple(self._xyz[:, :2].min(axis=0)), tuple(self._xyz[:, :2].max(axis=0)))
         ij = grid.xy_to_ij(self._xyz[:, :2])
         inside = grid.in_bounds(ij)
         keep = inside.copy()
-        keep[inside] = ~grid.layers.blacklist[ij[inside, 0], ij[inside, 1]]
+        ii, jj = ij[inside, 0], ij[inside, 1]
+        soft = grid.layers.potential_blacklist[ii, jj]
+        if detection_score is not None:
+            soft &= self._score[inside] < detection_score
+        keep[inside] = ~grid.layers.blacklist[ii, jj] & ~soft
         if not keep.any():
             return []
         ij_k = ij[keep]

@@ -63,6 +63,9 @@ class MapLayers:
     collision: np.ndarray
     goal: np.ndarray
     blacklist: np.ndarray  # rejected goal candidates: their points are dropped
+    # rejected *potential* candidates (never scored tau): only evidence below tau is dropped
+    # there; a later detection still counts (the rejection only said "not confirmed yet")
+    potential_blacklist: np.ndarray
     frontier_blacklist: np.ndarray  # frontiers given up (reached, unreachable, stalled); may be forgiven
 
     @staticmethod
@@ -295,9 +298,12 @@ class GridMap:
     def clear_goal(self) -> None:
         self.layers.goal[:] = False
 
-    def blacklist_cells(self, ij: np.ndarray, margin_m: float) -> None:
+    def blacklist_cells(self, ij: np.ndarray, margin_m: float, layer: str = "blacklist") -> None:
         """Reject a goal candidate: its cells (in-bounds ones) and everything within ``margin_m``
-        of them join the ``blacklist`` layer (goal points there are ignored from now on)."""
+        of them join the ``blacklist`` layer (goal points there are ignored from now on), or the
+        ``potential_blacklist`` layer (only points below tau are ignored there)."""
+        if layer not in ("blacklist", "potential_blacklist"):
+            raise ValueError(f"not a candidate blacklist layer: {layer!r}")
         ij = np.asarray(ij, np.int64).reshape(-1, 2)
         ij = ij[self.in_bounds(ij)]
         if len(ij) == 0:
@@ -305,7 +311,8 @@ class GridMap:
         cells = np.zeros(self.shape, bool)
         cells[ij[:, 0], ij[:, 1]] = True
         dt = cv2.distanceTransform((~cells).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        self.layers.blacklist |= dt * self.resolution_m <= margin_m
+        target = getattr(self.layers, layer)
+        target |= dt * self.resolution_m <= margin_m
 
     def forgive_collisions(self) -> None:
         """Drop every collision mark: they are guesses (which side blocked a move is unknown)."""
@@ -340,5 +347,5 @@ class GridMap:
             collision=L.collision.copy(),
             goal=L.goal.copy(),
             frontier=np.zeros(self.shape, bool) if frontier is None else frontier.copy(),
-            blacklist=L.blacklist | L.frontier_blacklist,
+            blacklist=L.blacklist | L.frontier_blacklist | L.potential_blacklist,
         )

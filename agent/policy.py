@@ -186,7 +186,7 @@ class ModIINAgent:
                 c = added[:, :2].mean(axis=0)
                 if math.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m) <= pc.verify_range_m:
                     self._set(confirmed_xy_m=self._state.confirmed_xy_m + ((float(c[0]), float(c[1])),))
-        candidates = self._evaluate(self.localiser.candidates(self.grid))
+        candidates = self._evaluate(self.localiser.candidates(self.grid, self.tau))
         timings["localisation"] = _ms(t)
 
         # 4. decision and planning
@@ -206,7 +206,7 @@ class ModIINAgent:
         plan, cand = decision.plan, decision.candidate
         robot_xy = (obs.pose.x_m, obs.pose.y_m)
         # the candidates as they stand after the decision (a rejection changes them)
-        live = self._evaluate(self.localiser.candidates(self.grid)) if self._rejected_now else candidates
+        live = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if self._rejected_now else candidates
         self._record = AgentRecord(
             step=obs.step,
             action=action,
@@ -287,7 +287,11 @@ class ModIINAgent:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
         self.memory.reject(cand, robot_xy_m)
         self._rejected_now = True
-        self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m)
+        # A candidate that never scored tau was only potential: reject its sub-tau evidence, not
+        # a later detection there (a rejected true goal would otherwise be lost for good)
+        soft = self.config.policy.soft_reject_potential and self.tau is not None and cand.max_score < self.tau
+        self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m,
+                                  layer="potential_blacklist" if soft else "blacklist")
         a = self._state.approach
         self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0), verify=None)
 
@@ -307,7 +311,7 @@ class ModIINAgent:
                 decision = self._approach(obs, picked.cluster)
             if decision is not None:
                 return decision
-            cands = self._evaluate(self.localiser.candidates(self.grid))  # the candidate was rejected
+            cands = self._evaluate(self.localiser.candidates(self.grid, self.tau))  # the candidate was rejected
             self.grid.clear_goal()
             if cands:
                 return self._decide(obs, cands)

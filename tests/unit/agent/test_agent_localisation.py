@@ -55,6 +55,31 @@ def test_blacklisted_cells_drop_points_cell_by_cell():
     assert not grid.layers.blacklist[rest.cells_ij[:, 0], rest.cells_ij[:, 1]].any()
 
 
+def test_a_softly_rejected_candidate_drops_only_evidence_below_tau():
+    obs, ids = obs_and_ids()
+    loc = GoalLocaliser()
+    loc.add_mask_pixels(obs, ids == len(BOXES) - 1, score=40.0)  # potential evidence (tau 75)
+    grid = GridMap()
+    (cand,) = loc.candidates(grid, detection_score=75.0)
+    grid.blacklist_cells(cand.cells_ij, 0.3, layer="potential_blacklist")
+    assert loc.candidates(grid, detection_score=75.0) == []
+    later = obs_and_ids(Pose2D(0.5, 0.0, 0.0))[0]
+    later = Observation(rgb=later.rgb, depth_m=later.depth_m, pose=later.pose, intrinsics=later.intrinsics,
+                        goal_image=later.goal_image, step=7)
+    loc.add_mask_pixels(later, obs_and_ids(Pose2D(0.5, 0.0, 0.0))[1] == len(BOXES) - 1, score=90.0)  # a detection
+    (again,) = loc.candidates(grid, detection_score=75.0)
+    assert again.max_score == 90.0 and again.frames == (7,)
+    # a hard rejection drops the detection too
+    grid.blacklist_cells(again.cells_ij, 0.3)
+    assert loc.candidates(grid, detection_score=75.0) == []
+    try:
+        grid.blacklist_cells(again.cells_ij, 0.3, layer="obstacle")
+    except ValueError:
+        pass
+    else:
+        raise AssertionError("blacklist_cells accepted a layer that is not a candidate blacklist")
+
+
 def test_crop_mask_geometry():
     m = crop_mask(512, 512)
     ys, xs = np.nonzero(m)
