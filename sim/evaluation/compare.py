@@ -1,0 +1,149 @@
+"""Paired comparison of evaluation runs on the same episodes (issue 13: "compare variants on
+the same episodes").
+
+Success varies far more between homes than between the episodes of one home, so two
+variants are compared on the episodes both have finished, and the difference gets its own
+interval from a bootstrap over homes of the *paired* per-episode differences (resampling
+homes keeps the pairing: the two variants always see the same drawn episodes). That interval
+is much narrower than the gap between two separate intervals.
+
+    python -m sim.evaluation.compare runs/base runs/variant1 runs/variant2 ...
+
+prints, on the episodes that every run has (a ladder in the paper's layout):
+
+* each run's NE, Max-ST, SR and SPL with 95% intervals over homes;
+* each run against the first: the paired difference in SR and SPL with its interval, and how
+  many episodes it won (failed in the first, succeeded here) and lost;
+* each run's failure causes on those episodes (counts, as in the paper's failure table).
+
+``--all`` uses each run's own episodes for the first table instead (unpaired).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from sim.metrics import aggregate, bootstrap_ci
+
+RECORDS = "episodes.jsonl"
+FAILURE_CLASSES = ("reid_false_negative", "reid_false_positive", "exploration", "localisation", "local_navigation")
+
+
+def load_records(out_dir: str | Path) -> dict[str, dict[str, Any]]:
+    """episode id -> record of one ``imgnav eval`` output (the first record of an id wins, as
+    in the runner)."""
+    path = Path(out_dir) / RECORDS
+    if not path.is_file():
+        raise FileNotFoundError(f"no {RECORDS} in {out_dir}")
+    out: dict[str, dict[str, Any]] = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}:{n}: not JSON ({exc})") from exc
+        out.setdefault(str(r["episode_id"]), r)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class PairedDiff:
+    """variant minus base on the same episodes; intervals from a bootstrap over homes."""
+
+    episodes: int
+    homes: int
+    d_sr: float
+    d_sr_ci95: tuple[float, float]
+    d_spl: float
+    d_spl_ci95: tuple[float, float]
+    won: int  # failed in the base, succeeded in the variant
+    lost: int  # succeeded in the base, failed in the variant
+
+
+def paired_difference(base: Mapping[str, Mapping[str, Any]], variant: Mapping[str, Mapping[str, Any]],
+                      ids: Sequence[str] | None = None) -> PairedDiff:
+    """The paired SR/SPL difference on ``ids`` (default: the episodes both have)."""
+    ids = sorted(set(base) & set(variant)) if ids is None else list(ids)
+    if not ids:
+        raise ValueError("the two runs have no episode in common")
+    homes = [base[k]["scene_seed"] for k in ids]
+    d_sr = [float(bool(variant[k]["success"])) - float(bool(base[k]["success"])) for k in ids]
+    d_spl = [float(variant[k]["spl"]) - float(base[k]["spl"]) for k in ids]
+    won = sum(1 for k in ids if variant[k]["success"] and not base[k]["success"])
+    lost = sum(1 for k in ids if base[k]["success"] and not variant[k]["success"])
+    n = len(ids)
+    return PairedDiff(n, len(set(homes)), sum(d_sr) / n, bootstrap_ci(d_sr, homes), sum(d_spl) / n,
+                      bootstrap_ci(d_spl, homes), won, lost)
+
+
+def _label(out_dir: str, records: Mapping[str, Mapping[str, Any]]) -> str:
+    variants = {str(r.get("variant", "")) for r in records.values()} - {""}
+    return f"{out_dir} ({variants.pop()})" if len(variants) == 1 else out_dir
+
+
+def _ci(value: float, ci: Sequence[float]) -> str:
+    return f"{value:.3f} [{ci[0]:.2f}, {ci[1]:.2f}]"
+
+
+def _signed_ci(value: float, ci: Sequence[float]) -> str:
+    return f"{value:+.3f} [{ci[0]:+.2f}, {ci[1]:+.2f}]"
+
+
+def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
+    """The three Markdown tables described in the module docstring."""
+    if len(out_dirs) < 1:
+        raise ValueError("give at least one evaluation output")
+    runs = [load_records(d) for d in out_dirs]
+    common = sorted(set.intersection(*(set(r) for r in runs)))
+    if paired and not common:
+        raise ValueError("the runs have no episode in common")
+    lines = [f"Episodes in common: {len(common)} "
+             f"({len({runs[0][k]['scene_seed'] for k in common})} homes)" if paired else "Each run on its own episodes",
+             "", "| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |", "| --- | --- | --- | --- | --- | --- |"]
+    for d, recs in zip(out_dirs, runs):
+        rows = [recs[k] for k in common] if paired else list(recs.values())
+        agg = aggregate([{**r, "ne": float(r["ne"])} for r in rows])
+        lines.append(f"| {_label(d, recs)} | {agg['ne']:.2f} | {agg['max_st']:.3f} | {_ci(agg['sr'], agg['sr_ci95'])} | "
+                     f"{_ci(agg['spl'], agg['spl_ci95'])} | {agg['episodes']} ({agg['homes']} homes) |")
+    if len(runs) > 1 and common:
+        lines += ["", f"Paired against {out_dirs[0]} on the {len(common)} common episodes (bootstrap over homes):", "",
+                  "| variant | d SR [95% CI] | d SPL [95% CI] | won | lost |", "| --- | --- | --- | --- | --- |"]
+        for d, recs in zip(out_dirs[1:], runs[1:]):
+            p = paired_difference(runs[0], recs, common)
+            lines.append(f"| {_label(d, recs)} | {_signed_ci(p.d_sr, p.d_sr_ci95)} | {_signed_ci(p.d_spl, p.d_spl_ci95)} | "
+                         f"{p.won} | {p.lost} |")
+    if common:
+        lines += ["", "Failures on the common episodes (counts):", "",
+                  "| variant | failed | " + " | ".join(FAILURE_CLASSES) + " | other |",
+                  "| --- | --- |" + " --- |" * (len(FAILURE_CLASSES) + 1)]
+        for d, recs in zip(out_dirs, runs):
+            failed = [recs[k] for k in common if not recs[k]["success"]]
+            c = Counter(r.get("failure_cause") or ("error" if r.get("error") else "unattributed") for r in failed)
+            other = sum(v for k, v in c.items() if k not in FAILURE_CLASSES)
+            lines.append(f"| {_label(d, recs)} | {len(failed)} | " + " | ".join(str(c.get(k, 0)) for k in FAILURE_CLASSES)
+                         + f" | {other} |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m sim.evaluation.compare", description=__doc__.split("\n\n")[0])
+    ap.add_argument("out_dirs", nargs="+", help="imgnav eval output directories; the first is the base")
+    ap.add_argument("--all", action="store_true", help="first table on each run's own episodes (unpaired)")
+    args = ap.parse_args(argv)
+    try:
+        print(compare(args.out_dirs, paired=not args.all))
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,63 @@
+import json
+
+import pytest
+
+from sim.evaluation.compare import compare, load_records, main, paired_difference
+
+
+def rec(eid, home, success, spl=None, cause=None, variant="v"):
+    return {"episode_id": eid, "scene_seed": home, "success": success, "spl": (0.5 if success else 0.0) if spl is None else spl,
+            "ne": 0.1 if success else 3.0, "max_steps_reached": False, "category": "chair",
+            "failure_cause": None if success else cause, "variant": variant}
+
+
+def write(tmp_path, name, records):
+    d = tmp_path / name
+    d.mkdir()
+    (d / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    return str(d)
+
+
+BASE = [rec("a0", 1, True), rec("a1", 1, False, cause="reid_false_negative"),
+        rec("b0", 2, False, cause="local_navigation"), rec("b1", 2, True)]
+
+
+def test_paired_difference_counts_wins_and_losses_on_the_same_episodes(tmp_path):
+    base = load_records(write(tmp_path, "base", BASE))
+    var = load_records(write(tmp_path, "var", [rec("a0", 1, True), rec("a1", 1, True), rec("b0", 2, True),
+                                               rec("b1", 2, False, cause="exploration"), rec("c0", 3, True)]))
+    p = paired_difference(base, var)
+    assert p.episodes == 4 and p.homes == 2  # c0 is not in the base: not compared
+    assert (p.won, p.lost) == (2, 1)
+    assert p.d_sr == pytest.approx(0.25)
+    assert p.d_sr_ci95[0] <= 0.25 <= p.d_sr_ci95[1] and p.d_sr_ci95[0] < p.d_sr_ci95[1]
+    same = paired_difference(base, base)
+    assert same.d_sr == 0.0 and same.d_sr_ci95 == (0.0, 0.0) and (same.won, same.lost) == (0, 0)
+
+
+def test_compare_tables_use_only_the_common_episodes(tmp_path):
+    b = write(tmp_path, "base", BASE)
+    v = write(tmp_path, "var", [rec("a0", 1, True, variant="w"), rec("a1", 1, True, variant="w")])
+    text = compare([b, v])
+    assert "Episodes in common: 2 (1 homes)" in text
+    rows = [line for line in text.splitlines() if line.startswith("| ")]
+    # base on the common episodes a0, a1: SR 0.5; the variant: 1.0, +0.5 paired, one won
+    assert any(f"{b} (v)" in r and "| 0.500 [" in r for r in rows)
+    assert any(f"{v} (w)" in r and "| 1.000 [" in r for r in rows)
+    assert any(f"{v} (w)" in r and "+0.500" in r and r.rstrip().endswith("| 1 | 0 |") for r in rows)
+    # failure counts on the common episodes: the base lost a1 to re-ID
+    assert any(f"{b} (v)" in r and r.startswith(f"| {b} (v) | 1 | 1 | 0 |") for r in rows)
+
+
+def test_bad_inputs_are_clear_errors(tmp_path, capsys):
+    b = write(tmp_path, "base", BASE)
+    other = write(tmp_path, "other", [rec("z0", 9, True)])
+    with pytest.raises(ValueError, match="no episode in common"):
+        compare([b, other])
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "episodes.jsonl").write_text('{"episode_id": "a0"}\nnot json\n')
+    with pytest.raises(ValueError, match="not JSON"):
+        load_records(broken)
+    assert main([b, str(tmp_path / "missing")]) == 2
+    assert "no episodes.jsonl" in capsys.readouterr().err
