@@ -385,7 +385,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         f"{int(ev.positive.sum())} same, {int(ev.negative.sum())} different pairs)\n\n{md}")
         named, panels, notes = named | n, panels | p, notes + c
     sections += [f"## Max-F threshold per bin (>= {args.min_positives} positives; '<= x (floor f)': best at the lowest "
-                 "threshold the gated frames allow)\n\n" + threshold_table(named),
+                 "threshold the gated frames allow; F depends on the bin's positive:negative ratio)\n\n"
+                 + threshold_table(named),
                  "## Conclusion\n\n" + "\n".join(f"- {n}" for n in notes)]
     md = f"# Distance-aware evidence (tau {tau:.1f}; a..b: a range where gated frames decide)\n\n" + "\n\n".join(sections) + "\n"
     (out / "evidence.md").write_text(md)
