@@ -115,16 +115,22 @@ def read_train_records(path: str | Path) -> list[dict]:
 
 
 def gate_threshold_of(rec: dict) -> float | None:
-    """The gate threshold the record's agent ran with, rebuilt from its variant (the --modiin-set
-    items) by the eval's own config code and the policy's rule (scaled by potential_tau_ratio)."""
+    """The gate threshold the record's agent ran with (scaled by potential_tau_ratio, the
+    policy's rule): from the resolved ``agent_config`` the record carries, or, for records
+    written before it did, rebuilt from its variant (the --modiin-set items) by the eval's own
+    config code over the sim deployment of that time, which had no potential evidence."""
+    from agent.config import agent_config_from_dict
     from agent.reid.identifier import resolve_gate_threshold
     from sim.evaluation.modiin import build_config
 
-    kv = dict(s.split("=", 1) for s in str(rec.get("variant", "")).split(", ") if "=" in s)
-    ns = argparse.Namespace(modiin_config="sim", modiin_reid=kv.pop("reid", "conf"), modiin_loc=kv.pop("loc", "mask"),
-                            modiin_matcher=kv.pop("matcher", None), modiin_tau=None, modiin_threads=1, workers=1,
-                            modiin_set=[f"{k}={v}" for k, v in kv.items()])
-    cfg = build_config(ns)
+    if isinstance(rec.get("agent_config"), dict):
+        cfg = agent_config_from_dict(rec["agent_config"])
+    else:
+        kv = dict(s.split("=", 1) for s in str(rec.get("variant", "")).split(", ") if "=" in s)
+        ns = argparse.Namespace(modiin_config="sim", modiin_reid=kv.pop("reid", "conf"), modiin_loc=kv.pop("loc", "mask"),
+                                modiin_matcher=kv.pop("matcher", None), modiin_tau=None, modiin_threads=1, workers=1,
+                                modiin_set=["policy.potential_tau_ratio=1.0"] + [f"{k}={v}" for k, v in kv.items()])
+        cfg = build_config(ns)
     base, ratio = resolve_gate_threshold(cfg.reid), cfg.policy.potential_tau_ratio
     return None if base is None else base * min(ratio, 1.0)
 

@@ -189,6 +189,9 @@ class Attribution:
         self.oracle = oracle
         self.seen_px = args.modiin_seen_px
         self.variant = variant_name(args)
+        # the resolved agent config (the variant's flags are relative to the deployment YAML,
+        # which changes between commits): records stay interpretable on their own
+        self.agent_config = to_dict(build_config(args))
         agent = _AGENTS_BY_ORACLE.get(id(oracle))
         if agent is not None and isinstance(getattr(agent, "segmenter", None) and agent.segmenter.oracle, _PendingGoalMask):
             agent.segmenter.oracle.mask = goal_image_mask(oracle, episode)
@@ -292,6 +295,7 @@ class Attribution:
         d = self._candidate_distance_m()
         return {
             "variant": self.variant,
+            "agent_config": self.agent_config,
             "failure_cause": self.cause(bool(episode_record.get("success"))),
             "modiin": {
                 "goal_seen_steps": self.seen_steps,

@@ -74,6 +74,15 @@ def test_gate_threshold_is_rebuilt_from_the_runs_variant() -> None:
     half = {"variant": "reid=conf, loc=mask, policy.stop_radius_m=0.6, policy.potential_tau_ratio=0.5"}
     assert evd.gate_threshold_of(half) == pytest.approx(0.5 * base)
     assert evd.gate_threshold_of({"variant": "reid=conf, loc=mask, reid.gate=false"}) is None
+    # records that carry their resolved config are read from it, whatever the variant says
+    from dataclasses import replace
+
+    from agent.configio import to_dict
+
+    cfg = load_agent_config("sim")
+    carried = {"variant": "reid=conf, loc=mask",
+               "agent_config": to_dict(replace(cfg, policy=replace(cfg.policy, potential_tau_ratio=0.25)))}
+    assert evd.gate_threshold_of(carried) == pytest.approx(0.25 * base)
 
 
 def test_max_f_threshold_per_bin() -> None:

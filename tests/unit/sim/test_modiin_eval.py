@@ -58,7 +58,7 @@ def attribution(steps):
     matcher ran])."""
     a = Attribution.__new__(Attribution)
     a.oracle = FakeOracle()
-    a.seen_px, a.variant = 2300, "v"
+    a.seen_px, a.variant, a.agent_config = 2300, "v", {"policy": {}}
     a.goal_bounds_world = (4.0, 4.0, 5.0, 5.0)  # world frame; start frame = world - (1, 0)
     a.steps = a.seen_steps = a.det_seen = a.det_unseen = a.planner_errors = a.candidate_on_goal_steps = 0
     a.first_seen = a.first_detection = a.last = None
