@@ -34,6 +34,7 @@ class LoopStep:
     record: AgentRecord | None
     t_s: float  # wall clock after ``apply`` returned
     step_ms: float  # act + apply
+    act_ms: float = 0.0  # of which act (the rest is apply)
 
 
 class StepSink(Protocol):
@@ -58,6 +59,7 @@ class LoopResult:
     first_action_s: float | None = None  # perf_counter seconds from the call to the first apply's return
     act_s: float = 0.0  # seconds in agent.act over the loop
     backend_s: float = 0.0  # seconds in backend.apply and backend.observe over the loop
+    backend_reset_s: float = 0.0  # of reset_s, backend.reset (the rest is agent.reset)
 
 
 class LoopError(RuntimeError):
@@ -79,6 +81,7 @@ def run_loop(
     """Run one episode or run to its end; see the module docstring."""
     t_call = time.perf_counter()
     obs = backend.reset()
+    backend_reset_s = time.perf_counter() - t_call
     agent.reset(obs.goal_image)
     reset_s = time.perf_counter() - t_call
     t_loop = time.perf_counter()
@@ -89,7 +92,7 @@ def run_loop(
 
     def result(how: str) -> LoopResult:
         return LoopResult(how, n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s,
-                          act_s, backend_s)
+                          act_s, backend_s, backend_reset_s)
 
     try:
         for step in range(max_steps):
@@ -112,7 +115,7 @@ def run_loop(
             if first_action_s is None:
                 first_action_s = now - t_call
             last_action, last_record, n = action, record, step + 1
-            s = LoopStep(step, obs, action, record, time.time(), 1000.0 * ((t1 - t0) + (now - t2)))
+            s = LoopStep(step, obs, action, record, time.time(), 1000.0 * ((t1 - t0) + (now - t2)), 1000.0 * (t1 - t0))
             for sink in sinks:
                 sink.step(s)
             if action == Action.STOP:

@@ -3,7 +3,9 @@
 1. upload -> first action: POST /api/runs with a goal photo until the robot's first
    action has been applied (server-side clock: request received -> first ``apply``
    returned), and the client-side time until the first step event arrives on the status
-   stream. Broken down into backend+agent construction and reset.
+   stream. Broken down into consecutive parts that add up to it (``FIRST_ACTION_PARTS``:
+   request, photo, run record, backend and agent construction, resets, first act and apply),
+   for the same start each run and for random starts (whose first frame is rendered).
 2. viewer publishing cost per step: ``Viewer.publish`` on records of a real run, without
    and with the map; and ``Viewer.offer`` (all the control loop pays).
 3. status-stream latency with 20 concurrent SSE clients: publish -> receipt, per event.
@@ -13,8 +15,11 @@
 5. calibration from photos: simulator goal images standing in for the operator's photos
    (3 objects x 3 views), every pair scored with the deployment's matcher.
 
-The simulator home stays built between runs (``sim_adapter.WorldCache``), so "warm" runs
-pay only the backend and agent construction; the warm-up before the first run is timed.
+The simulator home stays built between runs (``console.sim_cache.WorldCache``), with its
+start frames and the scoring data of its targets, so "warm" runs pay only the backend and
+agent construction; the warm-up before the first run is timed. torch's OpenMP threads wait
+passively, as in ``imgnav console`` (``console.agents.passive_openmp_wait``; an explicit
+``OMP_WAIT_POLICY`` in the environment wins).
 
 Prints medians (and p90) over several repetitions. Usage:
 
@@ -40,6 +45,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from console.agents import passive_openmp_wait  # noqa: E402
 from console.api import create_app  # noqa: E402
 from console.context import Console, ConsoleConfig  # noqa: E402
 from console.options import RunForm  # noqa: E402
@@ -102,49 +108,104 @@ def wait_final(client, run_id: str, timeout_s: float = 300.0) -> dict:
     raise TimeoutError(run_id)
 
 
-def bench_first_action(server: Server, runs: int) -> None:
+# The server-side parts of upload -> first action, in order; they add up to the total
+# (run timings written by console.manager; "other" is what none of them covers).
+FIRST_ACTION_PARTS = (
+    ("request: HTTP, upload, form", None),
+    ("photo decode (EXIF, hashes)", "decode_s"),
+    ("options and target (resolve)", "resolve_s"),
+    ("run record: upload's file, SQLite row", "record_s"),
+    ("run status row and event", "prepare_s"),
+    ("backend construction (home kept built)", "open_backend_s"),
+    ("agent construction", "open_agent_s"),
+    ("agent config row, viewer", "setup_s"),
+    ("backend.reset: the first frame", "reset_backend_s"),
+    ("agent.reset: goal features, new map", "reset_agent_s"),
+    ("first agent.act", "first_act_s"),
+    ("first backend.apply", "first_apply_s"),
+)
+
+
+def first_action_parts(t: dict) -> dict[str, float]:
+    """A run's upload -> first action in ms, by part (``FIRST_ACTION_PARTS``), plus "other"."""
+    ms = {key: 1000.0 * float(t.get(key) or 0.0) for _, key in FIRST_ACTION_PARTS if key}
+    out = {}
+    for label, key in FIRST_ACTION_PARTS:
+        if key is None:  # what the request spent beyond the parts it timed (incl. the worker's start)
+            out[label] = 1000.0 * t["request_s"] - ms["decode_s"] - ms["resolve_s"] - ms["record_s"]
+        else:
+            out[label] = ms[key]
+    out["other (between the parts)"] = 1000.0 * t["upload_to_first_action_s"] - sum(out.values())
+    return out
+
+
+def first_action_client(url: str, starts: list[str | None]) -> list[tuple[dict, list[dict], float | None]]:
+    """Upload the first gallery photo once per entry of ``starts``, one run after the other,
+    and return each run's server timings, steps and the client-side time to its first step
+    event. Runs in a process of its own (``bench_first_action``), as a phone would: an HTTP
+    client in the console's process (a new httpx client per stream loads its CA bundle;
+    polling every 20 ms) took the GIL and cores from the run it measured."""
     import httpx
 
-    client = httpx.Client(base_url=server.url, timeout=60)
-    home = client.get("/api/backends/sim").json()["homes"][0]
-    png = client.get(home["gallery"][0]["url"]).content
-    server_s, client_s, open_s, reset_s = [], [], [], []
-    for k in range(runs + 1):  # the first run loads the matcher weights: reported apart
-        got_step = threading.Event()
-        first_step_at: list[float] = []
+    out = []
+    with httpx.Client(base_url=url, timeout=120) as client:
+        home = client.get("/api/backends/sim").json()["homes"][0]
+        png = client.get(home["gallery"][0]["url"]).content
+        for start in starts:
+            t0 = time.perf_counter()
+            data = {"max_steps": "3", **({"start": start} if start else {})}
+            resp = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data=data)
+            resp.raise_for_status()
+            run_id = resp.json()["id"]
+            first_step_ms, kind = None, ""
+            with client.stream("GET", f"/api/runs/{run_id}/events") as stream:  # to the run's final status
+                for raw in stream.iter_lines():
+                    if raw.startswith("event: "):
+                        kind = raw[7:]
+                        if kind == "step" and first_step_ms is None:
+                            first_step_ms = 1000 * (time.perf_counter() - t0)
+                    elif raw.startswith("data: ") and kind == "status":
+                        if json.loads(raw[6:]).get("status") in ("finished", "stopped", "failed"):
+                            break
+            row = wait_final(client, run_id)  # the final row is written just before its event
+            steps = client.get(f"/api/runs/{run_id}?steps=true").json().get("steps") or []
+            out.append((row["timings"], steps, first_step_ms))
+    return out
 
-        def listen(run_id: str) -> None:
-            with httpx.stream("GET", f"{server.url}/api/runs/{run_id}/events", timeout=120) as resp:
-                for raw in resp.iter_lines():
-                    if raw.startswith("event: step"):
-                        first_step_at.append(time.perf_counter())
-                        got_step.set()
-                        return
 
-        t0 = time.perf_counter()
-        resp = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data={"max_steps": "3"})
-        resp.raise_for_status()
-        run_id = resp.json()["id"]
-        listener = threading.Thread(target=listen, args=(run_id,), daemon=True)
-        listener.start()
-        row = wait_final(client, run_id)
-        listener.join(10)
-        t = row["timings"]
-        if k == 0:
-            print(f"  cold first run (matcher weights load): upload->first action {t['upload_to_first_action_s'] * 1000:.0f} ms")
-            continue
-        server_s.append(1000 * t["upload_to_first_action_s"])
-        open_s.append(1000 * t["open_s"])
-        reset_s.append(1000 * t["reset_s"])
-        if first_step_at:
-            client_s.append(1000 * (first_step_at[0] - t0))
-    print(line("upload -> first action applied (server)", server_s, "ms"))
-    if client_s:
-        print(line("upload -> first step event at client", client_s, "ms"))
-    print(line("  of which: backend + agent (home kept built)", open_s, "ms"))
-    print(line("  of which: backend.reset + agent.reset", reset_s, "ms"))
-    rest = [s - o - r for s, o, r in zip(server_s, open_s, reset_s)]
-    print(line("  of which: request, photo, first agent step", rest, "ms"))
+def bench_first_action(server: Server, runs: int, fresh_runs: int) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        # the first run loads the matcher weights: reported apart
+        results = pool.submit(first_action_client, server.url, [None] * (runs + 1) + ["random"] * fresh_runs).result()
+    print(f"  cold first run (matcher weights load): upload->first action {results[0][0]['upload_to_first_action_s'] * 1000:.0f} ms")
+    print("  warm: the same photo and start each run (start frame and scoring data kept from the run before)")
+    report_first_action(results[1:runs + 1])
+    if fresh_runs:
+        print("  warm, start 'random' (a new heading each run: its first frame is rendered, not kept)")
+        report_first_action(results[runs + 1:])
+
+
+def report_first_action(results: list[tuple[dict, list[dict], float | None]]) -> None:
+    totals = [1000 * t["upload_to_first_action_s"] for t, _, _ in results]
+    print(line("upload -> first action applied (server)", totals, "ms"))
+    client_ms = [c for _, _, c in results if c is not None]
+    if client_ms:
+        print(line("upload -> first step event at client", client_ms, "ms"))
+    parts = [first_action_parts(t) for t, _, _ in results]
+    mid = sorted(range(len(totals)), key=totals.__getitem__)[len(totals) // 2]  # the median run (odd n)
+    print(f"  {'part':<46} {'median':>8} {'median run':>11}")
+    for label in parts[0]:
+        print(f"  {label:<46} {statistics.median(p[label] for p in parts):8.1f} {parts[mid][label]:11.1f} ms")
+    print(f"  {'sum (the median run: its total)':<46} {'':>8} {sum(parts[mid].values()):11.1f} ms")
+    # the first act by the agent's own parts (its record's timings, ms)
+    first = [steps[0]["timings"] for _, steps, _ in results if steps]
+    if first:
+        keys = [k for k in first[0] if k not in ("step_ms", "total")]
+        print("  first act by agent part (median): "
+              + ", ".join(f"{k} {statistics.median(float(f.get(k) or 0.0) for f in first):.0f}" for k in keys) + " ms")
 
 
 def bench_viewer(data_dir: Path, steps: int) -> None:
@@ -308,6 +369,7 @@ def bench_stream(server: Server, n_clients: int, n_events: int) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=5, help="repetitions of the upload benchmark")
+    parser.add_argument("--fresh-runs", type=int, default=3, help="upload repetitions from a random start (start frame rendered)")
     parser.add_argument("--clients", type=int, default=20)
     parser.add_argument("--events", type=int, default=100)
     parser.add_argument("--viewer-steps", type=int, default=40)
@@ -317,6 +379,7 @@ def main() -> int:
     parser.add_argument("--calibration-views", type=int, default=3)
     parser.add_argument("--only", nargs="*", default=None, help="run only these parts: first_action stream viewer replay calibration")
     args = parser.parse_args()
+    passive_openmp_wait()  # as `imgnav console` does, before torch is imported
     want = (lambda part: args.only is None or part in args.only)
     logging.basicConfig(level=logging.WARNING)
     with tempfile.TemporaryDirectory() as tmp:
@@ -332,7 +395,7 @@ def main() -> int:
                 if want("first_action"):
                     print("1. upload -> first action")
                     print(f"  warm-up before the first run: home built in {sim.warm_up():.2f} s")
-                    bench_first_action(server, args.runs)
+                    bench_first_action(server, args.runs, args.fresh_runs)
                 if want("stream"):
                     print("3. status stream")
                     bench_stream(server, args.clients, args.events)

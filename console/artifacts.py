@@ -19,7 +19,7 @@ import json
 import logging
 import re
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 from PIL import Image
@@ -74,13 +74,23 @@ class ArtifactWriter:
         self._frames: list[bytes] = []
         self._stride = 1  # keep every ``_stride``-th step once decimated
         self._last: StepRecord | None = None
+        self._goal_png: Callable[[], bytes] | None = None
 
-    def write_goal(self, png_bytes: bytes, upload: bytes, extension: str) -> None:
-        (self.dir / "goal.png").write_bytes(png_bytes)
+    def write_goal(self, png_bytes: Callable[[], bytes], upload: bytes, extension: str) -> None:
+        """The uploaded bytes now; goal.png (the photo as the agent sees it, ``png_bytes()``) at
+        ``flush_goal``: the first action does not need the file and encoding it takes 25-70 ms
+        (a 512 px to 1024 px photo), so the run's worker writes it right after the first action."""
         name = f"goal_upload.{extension}"
         if name not in ARTIFACT_NAMES:
             raise ValueError(f"unexpected upload extension {extension!r}")
         (self.dir / name).write_bytes(upload)
+        self._goal_png = png_bytes
+
+    def flush_goal(self) -> None:
+        """Write goal.png unless written already (after the first action, or at ``finish``)."""
+        if self._goal_png is not None:
+            png_bytes, self._goal_png = self._goal_png, None
+            (self.dir / "goal.png").write_bytes(png_bytes())
 
     def add_step(self, rec: StepRecord) -> None:
         self._last = rec
@@ -117,8 +127,10 @@ class ArtifactWriter:
         )
 
     def finish(self, trajectory: Iterable[Mapping[str, Any]], summary: Mapping[str, Any]) -> list[str]:
-        """Write trajectory.json, map.png and run.webp; returns the names written."""
+        """Write trajectory.json, map.png and run.webp (and goal.png if no step wrote it);
+        returns the names written."""
         written = []
+        self.flush_goal()
         if self.replay is not None:
             self.replay.finish()
         doc = {"summary": json_safe(dict(summary)), "steps": json_safe(list(trajectory))}

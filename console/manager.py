@@ -41,7 +41,7 @@ import numpy as np
 from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
-from agent.loop import LoopError, LoopStep, run_loop
+from agent.loop import LoopError, LoopResult, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
@@ -100,19 +100,29 @@ class RunManager:
         with self._lock:
             return self._active.run_id if self._active is not None else None
 
-    def start(self, resolved: ResolvedRun, goal: GoalPhoto, upload: bytes, received_s: float) -> str:
-        """Create the run record and its worker thread; returns the run id.
+    def start(
+        self,
+        resolved: ResolvedRun,
+        goal: GoalPhoto,
+        upload: bytes,
+        received_s: float,
+        request_timings: Mapping[str, float] | None = None,
+    ) -> str:
+        """Create the run record and its worker thread; returns the run id. ``request_timings``:
+        what the request spent before (``decode_s``, ``resolve_s``), kept in the run's timings.
 
         Raises ``RunConflict`` when a run is active, RuntimeError after shutdown."""
         provider = self.providers[resolved.backend]
+        timings: dict[str, Any] = dict(request_timings or {})
         with self._lock:
             if self._closed:
                 raise RuntimeError("the console is shutting down")
             if self._active is not None and self._active.thread.is_alive():
                 raise RunConflict(self._active.run_id)
             run_id = uuid.uuid4().hex[:12]
+            t0 = time.perf_counter()
             writer = ArtifactWriter(run_dir(self.data_dir, run_id), replay=ReplayRecorder(self.store, run_id))
-            writer.write_goal(goal.png_bytes(), upload, goal.extension)
+            writer.write_goal(goal.png_bytes, upload, goal.extension)  # goal.png after the first action
             goal_info = {
                 "format": goal.source_format,
                 "size_px": list(goal.original_size_px),
@@ -129,10 +139,11 @@ class RunManager:
                 target=resolved.target,
                 created_s=received_s,
             )
+            timings["record_s"] = time.perf_counter() - t0  # the upload's file and the run's row
             stop = threading.Event()
             thread = threading.Thread(
                 target=self._work,
-                args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s),
+                args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s, timings),
                 name=f"run-{run_id}",
                 daemon=True,
             )
@@ -192,9 +203,12 @@ class RunManager:
         writer: ArtifactWriter,
         stop: threading.Event,
         received_s: float,
+        timings: dict[str, Any],
     ) -> None:
-        timings: dict[str, Any] = {}
         started_s = time.time()
+        # upload to the first action, in consecutive parts that add up (bench_console prints them)
+        timings["request_s"] = started_s - received_s  # HTTP, photo, options, run record, thread start
+        t_prepare = time.perf_counter()
         self.store.update_run(run_id, status="running", started_s=started_s)
         self.hub.publish("status", run_id, {"status": "running", "detail": "preparing the backend and the agent"})
         session: RunSession | None = None
@@ -208,8 +222,11 @@ class RunManager:
         stop_record = None  # the agent's record of its STOP
         try:
             t0 = time.perf_counter()
+            timings["prepare_s"] = t0 - t_prepare  # the run's status row and event
             session = provider.open(resolved, goal_rgb)
-            timings["open_s"] = time.perf_counter() - t0
+            t_opened = time.perf_counter()
+            timings["open_s"] = t_opened - t0
+            timings.update(getattr(session, "open_timings", None) or {})  # backend / agent construction
             with self._lock:
                 if self._active is not None and self._active.run_id == run_id:
                     self._active.session = session
@@ -221,18 +238,19 @@ class RunManager:
             # The project's one loop (agent.loop); this run's step sink publishes every step.
             sink = _RunSink(self, run_id, goal_rgb, writer, received_s, timings, traj_rows, part_sums)
             t_loop = t_last_step = time.perf_counter()
+            timings["setup_s"] = t_loop - t_opened  # the agent config row, the viewer
             try:
                 result = run_loop(session.backend, session.agent, resolved.max_steps, sinks=(sink,), should_stop=stop.is_set)
             except LoopError as exc:  # handled below like any backend or agent failure, steps kept
                 last_action, n_steps = exc.result.last_action, exc.result.n_steps
-                timings["reset_s"] = exc.result.reset_s
+                _loop_timings(timings, exc.result)
                 t_loop += exc.result.reset_s
                 t_last_step = sink.t_last_step or t_loop
                 raise exc.cause from None
             except BaseException:  # the resets failed: no loop ran
                 t_loop = None
                 raise
-            timings["reset_s"] = result.reset_s
+            _loop_timings(timings, result)
             t_loop += result.reset_s  # loop time starts after the resets
             t_last_step = sink.t_last_step or t_loop
             last_action, n_steps = result.last_action, result.n_steps
@@ -352,6 +370,16 @@ def agent_stop_detail(record: Any, session_detail: str) -> str:
     return "; ".join([head, *rest])
 
 
+def _loop_timings(timings: dict[str, Any], result: LoopResult) -> None:
+    """The resets (backend, agent) and the first step (``first_step_s``: the resets' end to the
+    first apply's return; its act and apply are ``first_act_s`` and ``first_apply_s``)."""
+    timings["reset_s"] = result.reset_s
+    timings["reset_backend_s"] = result.backend_reset_s
+    timings["reset_agent_s"] = result.reset_s - result.backend_reset_s
+    if result.first_action_s is not None:
+        timings["first_step_s"] = result.first_action_s - result.reset_s
+
+
 def _cancel_backend(session: RunSession, why: str) -> bool:
     """Cancel the backend's waits if it offers that; True if it does."""
     cancel = getattr(session.backend, "cancel", None)
@@ -395,6 +423,8 @@ class _RunSink:
     def step(self, s: LoopStep) -> None:
         if s.step == 0:
             self.timings["upload_to_first_action_s"] = s.t_s - self.received_s
+            self.timings["first_act_s"] = s.act_ms / 1000.0
+            self.timings["first_apply_s"] = (s.step_ms - s.act_ms) / 1000.0
         record, obs = s.record, s.obs
         self.trajectory.append((obs.pose.x_m, obs.pose.y_m))
         self.reid_history.append(
@@ -423,6 +453,11 @@ class _RunSink:
             self.part_sums[k] = self.part_sums.get(k, 0.0) + float(v)
         self.manager._publish_step(rec, row)
         self.writer.add_step(rec)
+        if s.step == 0:  # goal.png: not needed before the first action
+            try:
+                self.writer.flush_goal()
+            except OSError:  # a file of the run, never a reason to end it
+                logger.exception("run %s: writing goal.png failed", self.run_id)
         self.t_last_step = time.perf_counter()
 
 

@@ -78,8 +78,10 @@ class GoalPhoto:
         return ACCEPTED_FORMATS[self.source_format]
 
     def png_bytes(self) -> bytes:
+        """Lossless PNG of ``rgb``. zlib level 1: written between the run's first and second
+        actions; ~3x faster than Pillow's default level 6 for ~20% more bytes, same pixels."""
         buf = io.BytesIO()
-        Image.fromarray(self.rgb).save(buf, format="PNG")
+        Image.fromarray(self.rgb).save(buf, format="PNG", compress_level=1)
         return buf.getvalue()
 
 
@@ -165,7 +167,7 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
     rgb = np.ascontiguousarray(np.asarray(rgb_image, dtype=np.uint8))
     # Per channel: a solid (200, 100, 50) has a large spread over all values but none within
     # any channel.
-    if float(rgb.reshape(-1, 3).std(axis=0).max()) < 1.0:
+    if _max_channel_std(rgb) < 1.0:
         raise PhotoError(422, "blank", "the image is a single flat colour; it shows no object to look for")
     return GoalPhoto(
         rgb=rgb,
@@ -174,6 +176,21 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         sha256=hashlib.sha256(data).hexdigest(),
         dhash=dhash(rgb),
     )
+
+
+def _max_channel_std(rgb: np.ndarray) -> float:
+    """The largest per-channel standard deviation of (h, w, 3) uint8, from per-channel value
+    histograms (exact integer sums): the same figure as ``rgb.reshape(-1, 3).std(axis=0).max()``
+    without a float64 copy of the photo, which took half of the photo's decoding time."""
+    values = np.arange(256, dtype=np.int64)
+    flat = rgb.reshape(-1, 3)
+    n = flat.shape[0]
+    best = 0.0
+    for c in range(3):
+        counts = np.bincount(flat[:, c], minlength=256).astype(np.int64)
+        s1, s2 = int(counts @ values), int(counts @ (values * values))
+        best = max(best, (n * s2 - s1 * s1) / (n * n))  # variance, from Python's exact integers
+    return best ** 0.5
 
 
 def _megapixels(n_pixels: int) -> str:

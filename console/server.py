@@ -57,6 +57,10 @@ def console_urls(host: str, port: int, token: str | None) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from console.agents import passive_openmp_wait
+
+    passive_openmp_wait()  # before anything imports torch
+
     import uvicorn
 
     from console.agents import warm_up_async

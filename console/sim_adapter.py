@@ -4,6 +4,8 @@
   each goal instance) and render its gallery with the simulator's goal-image sampler.
 * ``open_session``: a ``SimBackend`` for a start pose and any goal image (with the
   target instance when it is known, so the run can be scored) and a Mod-IIN agent.
+  With the console's ``WorldCache`` (``console.sim_cache``) the home stays built between
+  runs, and so do its start frames and the scoring data of its targets.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -23,6 +25,7 @@ from agent.types import Action, Agent, Pose2D
 from console.agents import build_agent
 from console.photos import dhash
 from console.session import Outcome
+from console.sim_cache import WorldCache, kept_scoring, kept_start_render
 from console.sim_catalog import GalleryItem, HomeEntry, Start
 
 logger = logging.getLogger(__name__)
@@ -64,44 +67,6 @@ def _footprints(seed: int, n_rooms: int) -> Any:
     home = generate_home(seed, n_rooms=n_rooms)
     x0, y0, x1, y1 = home.bounds_m
     return FootprintIndex(home.solid_footprints(), (x0, y0, x1, y1))
-
-
-class WorldCache:
-    """The last simulator home built, kept for the next run (the console runs one at a time).
-
-    Building a home (scene generation, PyBullet bodies, textures) is most of the time from
-    upload to the first action; ``SimBackend`` is made to share a world it does not own.
-    Used by one thread at a time: the run's worker, or the warm-up before any run."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._key: tuple | None = None
-        self._world: Any = None
-
-    def get(self, key: tuple, build: Callable[[], Any]) -> Any:
-        with self._lock:
-            if self._key != key:
-                if self._world is not None:
-                    self._world.close()
-                    self._world, self._key = None, None
-                self._world = build()
-                self._key = key
-            return self._world
-
-    def warm(self, key: tuple, build: Callable[[], Any]) -> bool:
-        """Build ``key``'s world only if none is kept: never replaces a world a run may be using."""
-        with self._lock:
-            if self._world is not None:
-                return False
-            self._world = build()
-            self._key = key
-            return True
-
-    def close(self) -> None:
-        with self._lock:
-            if self._world is not None:
-                self._world.close()
-            self._world, self._key = None, None
 
 
 def _world(seed: int, n_rooms: int) -> Any:
@@ -224,6 +189,7 @@ class SimSession:
     agent: Agent
     agent_config: Mapping[str, Any] = field(default_factory=dict)
     target_known: bool = False
+    open_timings: Mapping[str, float] = field(default_factory=dict)  # open_backend_s, open_agent_s
 
     def outcome(self, last_action: Action | None, reason: str) -> Outcome:
         if reason == "operator":
@@ -271,28 +237,40 @@ def open_session(
     worlds: WorldCache | None = None,
 ) -> SimSession:
     from sim.backend import SimBackend
+    from sim.camera import SIM_CAMERA
 
+    t0 = time.perf_counter()
+    key = ("home", home_seed, n_rooms)
+    start = Pose2D(*start_pose_world)
+    extra: dict[str, Any] = {}
     if worlds is None:  # a world of its own, closed with the backend
         world, owns = _world(home_seed, n_rooms), True
-    else:  # the console's warm world: kept for the next run
-        world, owns = worlds.get(("home", home_seed, n_rooms), lambda: _world(home_seed, n_rooms)), False
+    else:  # the console's warm world: kept for the next run, with its start frames and scoring data
+        world, owns = worlds.get(key, lambda: _world(home_seed, n_rooms)), False
+        extra["start_render"] = kept_start_render(worlds, key, world, start, SIM_CAMERA)
+        if target_instance_id is not None:
+            extra["scoring"] = kept_scoring(worlds, key, world, target_instance_id, start)
     try:
         # The backend's step budget is the run's, so a run that spends it is over for the
         # backend too and can be scored.
         backend = SimBackend(
             world,
             goal_rgb,
-            Pose2D(*start_pose_world),
+            start,
             goal_instance_id=target_instance_id,
             max_steps=max_steps,
             owns_world=owns,
+            camera=SIM_CAMERA,
+            **extra,
         )
+        t1 = time.perf_counter()
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:
         if owns:
             world.close()
         raise
-    return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None)
+    timings = {"open_backend_s": t1 - t0, "open_agent_s": time.perf_counter() - t1}
+    return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None, open_timings=timings)
 
 
 def open_episode_session(
@@ -300,18 +278,27 @@ def open_episode_session(
 ) -> SimSession:
     """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
     from sim.backend import SimBackend
+    from sim.camera import SIM_CAMERA
     from sim.world import SimWorld
 
+    t0 = time.perf_counter()
     seed = episode.scene_seed
+    key = ("episode", seed)
+    extra: dict[str, Any] = {}
     if worlds is None:
         world, owns = SimWorld.from_seed(seed), True
     else:
-        world, owns = worlds.get(("episode", seed), lambda: SimWorld.from_seed(seed)), False
+        world, owns = worlds.get(key, lambda: SimWorld.from_seed(seed)), False
+        extra["start_render"] = kept_start_render(worlds, key, world, episode.start_pose_world, SIM_CAMERA)
     try:
-        backend = SimBackend.for_episode(world, episode, goal_rgb, max_steps=max_steps, owns_world=owns)
+        backend = SimBackend.for_episode(
+            world, episode, goal_rgb, max_steps=max_steps, owns_world=owns, camera=SIM_CAMERA, **extra
+        )
+        t1 = time.perf_counter()
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:
         if owns:
             world.close()
         raise
-    return SimSession(backend, agent, agent_config, target_known=True)
+    timings = {"open_backend_s": t1 - t0, "open_agent_s": time.perf_counter() - t1}
+    return SimSession(backend, agent, agent_config, target_known=True, open_timings=timings)

@@ -67,7 +67,7 @@ class SimProvider:
         self._progress = "not prepared yet"
         self._thread: threading.Thread | None = None
         self._episodes: Any = None
-        self._worlds: Any = None  # sim_adapter.WorldCache, made on first use (imports sim/)
+        self._worlds: Any = None  # sim_cache.WorldCache, made on first use (imports sim/)
         if config.episodes_dir is not None:
             from sim.episodes import load_episode_set
 

@@ -3,8 +3,11 @@
 Built from a ``SimWorld`` and either an ``Episode`` (with its goal image) or a
 free world start pose plus any goal image (an uploaded photo). In the second
 case the target is unknown and the run is unscored, unless a known target
-instance id is given, in which case viewpoints and geodesics are computed on the
-fly and ``result()`` scores the run.
+instance id is given, in which case viewpoints and geodesics (``GoalScoring``) are
+computed when first needed (scoring, the oracle), not before the first action, and
+``result()`` scores the run. A caller that keeps a world between runs may hand in
+``scoring`` and ``start_render`` callables that return the same data kept from an
+earlier run (the scene is static: same world, target and start, same values).
 
 * ``reset()`` starts at the start pose; ``Observation.pose`` is relative to it.
 * ``apply(action)``: one discrete action; STOP ends the episode; so does the
@@ -20,7 +23,9 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -33,6 +38,31 @@ from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, insta
 from sim.world import SimWorld
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GoalScoring:
+    """What scoring a run needs about its target, for one world, target and start component.
+
+    viewpoints_world: (N, 2) float64 world xy of the goal viewpoints reachable from the start.
+    field: (H, W) float64 geodesic metres to the nearest viewpoint over the world's 0.05 m
+           navigable grid (inf where unreachable); None when there is no viewpoint."""
+
+    viewpoints_world: np.ndarray
+    field: np.ndarray | None
+
+
+def start_component(world: SimWorld, start_pose_world: Pose2D) -> np.ndarray:
+    """(H, W) bool: the navigable component (0.05 m grid) the start pose lies in."""
+    return reachable_component(world.navigable_grid(GRID_RESOLUTION_M), (start_pose_world.x_m, start_pose_world.y_m))
+
+
+def goal_scoring(world: SimWorld, goal_instance_id: int, free: np.ndarray) -> GoalScoring:
+    """Viewpoints of the goal instance within ``free`` (a start's component) and the geodesic
+    field to them: the ray tests (~0.2 s on 2 cores) and the fast marching of a scored run."""
+    viewpoints = np.asarray(instance_viewpoints(world, goal_instance_id, free), float).reshape(-1, 2)
+    field = geodesic_field(world.navigable_grid(GRID_RESOLUTION_M), viewpoints) if len(viewpoints) else None
+    return GoalScoring(viewpoints, field)
 
 
 class SimOracle:
@@ -134,7 +164,14 @@ class SimBackend:
     def __init__(self, world: SimWorld, goal_image: np.ndarray, start_pose_world: Pose2D,
                  goal_instance_id: int | None = None, viewpoints_xy_m: np.ndarray | None = None,
                  shortest_path_m: float | None = None, camera: CameraSpec = SIM_CAMERA, max_steps: int = MAX_STEPS,
-                 owns_world: bool = False, episode: Episode | None = None) -> None:
+                 owns_world: bool = False, episode: Episode | None = None,
+                 scoring: Callable[[], GoalScoring] | None = None,
+                 start_render: Callable[[], Render] | None = None) -> None:
+        """``scoring``: the target's ``GoalScoring`` for this world and start (used only when
+        ``goal_instance_id`` is given without ``viewpoints_xy_m``; default: ``goal_scoring``),
+        called when first needed. ``start_render``: the frame at the start pose with this
+        camera, called instead of rendering it (at ``reset``); it must return arrays the run
+        may keep."""
         goal_image = np.asarray(goal_image)
         if goal_image.ndim != 3 or goal_image.shape[2] != 3 or goal_image.dtype != np.uint8:
             raise ValueError("goal_image must be (h, w, 3) uint8 RGB")
@@ -148,10 +185,14 @@ class SimBackend:
         self.max_steps = max_steps
         self.owns_world = owns_world
         self.episode = episode
+        self._scoring_fn: Callable[[], GoalScoring] | None = None
+        self._viewpoints: np.ndarray | None = None
         if goal_instance_id is not None and viewpoints_xy_m is None:
-            free = reachable_component(world.navigable_grid(GRID_RESOLUTION_M), (start_pose_world.x_m, start_pose_world.y_m))
-            viewpoints_xy_m = instance_viewpoints(world, goal_instance_id, free)
-        self.viewpoints_world = np.zeros((0, 2)) if viewpoints_xy_m is None else np.asarray(viewpoints_xy_m, float).reshape(-1, 2)
+            # Only scoring and the oracle read these, never the first action: computed on first use.
+            self._scoring_fn = scoring or (lambda: goal_scoring(world, goal_instance_id, start_component(world, start_pose_world)))
+        else:
+            self._viewpoints = np.zeros((0, 2)) if viewpoints_xy_m is None else np.asarray(viewpoints_xy_m, float).reshape(-1, 2)
+        self._start_render = start_render
         self._shortest_path_m = shortest_path_m
         self._field: np.ndarray | None = None
         self.oracle = SimOracle(self)
@@ -179,6 +220,20 @@ class SimBackend:
         self._render: Render | None = None
         self._render_pose: Pose2D | None = None
 
+    @property
+    def viewpoints_world(self) -> np.ndarray:
+        """(N, 2) float64 goal viewpoints, world frame (empty when the target is unknown)."""
+        if self._viewpoints is None:
+            self._resolve_scoring()
+        assert self._viewpoints is not None
+        return self._viewpoints
+
+    def _resolve_scoring(self) -> None:
+        assert self._scoring_fn is not None
+        scoring = self._scoring_fn()
+        self._viewpoints = scoring.viewpoints_world
+        self._field = scoring.field
+
     # --- Backend protocol ---
     def reset(self) -> Observation:
         if self._closed:
@@ -188,7 +243,8 @@ class SimBackend:
 
     def current_render(self) -> Render:
         if self._render is None or self._render_pose != self.pose_world:
-            self._render = self.world.render(self.pose_world, self.camera)
+            at_start = self._start_render is not None and self.pose_world == self.start_pose_world
+            self._render = self._start_render() if at_start else self.world.render(self.pose_world, self.camera)
             self._render_pose = self.pose_world
         return self._render
 
@@ -234,7 +290,7 @@ class SimBackend:
 
     # --- scoring ---
     def goal_field(self) -> np.ndarray | None:
-        if self.goal_instance_id is None or len(self.viewpoints_world) == 0:
+        if self.goal_instance_id is None or len(self.viewpoints_world) == 0:  # resolves the scoring data
             return None
         if self._field is None:
             grid = self.world.navigable_grid(GRID_RESOLUTION_M)

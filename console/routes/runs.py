@@ -104,6 +104,7 @@ async def start_run(
     if active is not None:  # answer before reading the photo; start() checks again under its lock
         raise error(409, "run_active", f"run {active} is active; stop it or wait for it to end")
     data = await goal_image.read(console.config.photo_limits.max_bytes + 1)
+    t0 = time.perf_counter()
     try:
         photo = await run_in_threadpool(decode_photo, data, console.config.photo_limits)
     except PhotoError as exc:
@@ -111,6 +112,7 @@ async def start_run(
     form = RunForm.of(
         home=home, start=start, episode=episode, gallery_item=gallery_item, target_instance=target_instance, max_steps=max_steps
     )
+    t1 = time.perf_counter()
     try:
         # in a thread: checking a custom start builds the home's geometry once (~0.5 s)
         resolved = await run_in_threadpool(provider.resolve, form, photo.dhash, photo.sha256)
@@ -118,8 +120,9 @@ async def start_run(
         raise error(422, "bad_options", str(exc)) from None
     except ProviderUnavailable as exc:
         raise error(503, "backend_unavailable", str(exc)) from None
+    request_timings = {"decode_s": t1 - t0, "resolve_s": time.perf_counter() - t1}  # the run's timings keep them
     try:
-        run_id = console.manager.start(resolved, photo, data, received_s)
+        run_id = console.manager.start(resolved, photo, data, received_s, request_timings)
     except RunConflict as exc:
         raise error(409, "run_active", str(exc)) from None
     except RuntimeError as exc:
