@@ -20,7 +20,10 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
 
 from agent.localisation import Candidate, GoalLocaliser, View
 from agent.types import CandidateInfo
@@ -61,17 +64,45 @@ def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float, verify_ra
 
 
 class CandidateMemory:
-    """Keeps the rejected candidates (for the record) and turns clusters into ``CandidateInfo``."""
+    """Keeps the rejected candidates (for the record, and their clusters for the last resort)
+    and turns clusters into ``CandidateInfo``."""
 
     def __init__(self) -> None:
         self._rejected: dict[int, CandidateInfo] = {}
+        # id -> (cluster, its cells' centres in metres): map cells move when the map grows
+        self._clusters: dict[int, tuple[Candidate, np.ndarray]] = {}
 
-    def reject(self, cand: GoalCandidate | Candidate, robot_xy_m: tuple[float, float]) -> None:
+    def reject(self, cand: GoalCandidate | Candidate, robot_xy_m: tuple[float, float],
+               cells_xy_m: np.ndarray | None = None) -> None:
+        """Record a rejection. ``cells_xy_m``: the centres of its cells (kept with the cluster
+        for ``rejected_cluster``). Rejecting it again keeps the best evidence seen."""
         cl = cand.cluster if isinstance(cand, GoalCandidate) else cand
         n_views = len(cand.views) if isinstance(cand, GoalCandidate) else cl.n_frames
         best = cand.best_score if isinstance(cand, GoalCandidate) else cl.max_score
+        old = self._rejected.get(cl.id)
+        if old is not None:
+            n_views, best = max(n_views, old.n_views), max(float(best), old.best_score)
         self._rejected[cl.id] = CandidateInfo(cl.id, CandidateState.REJECTED.value, cl.centroid_xy_m, n_views,
                                               float(best), math.dist(cl.centroid_xy_m, robot_xy_m))
+        if cells_xy_m is not None and len(cells_xy_m):
+            self._clusters[cl.id] = (cl, np.asarray(cells_xy_m, np.float64).reshape(-1, 2))
+
+    def best_rejected(self, exclude: frozenset[int] = frozenset()) -> int | None:
+        """The id of the rejected candidate with the best evidence (highest score, then most
+        views), among those with a kept cluster and not in ``exclude``; None when none is left."""
+        pool = [r for k, r in self._rejected.items() if k in self._clusters and k not in exclude]
+        if not pool:
+            return None
+        return max(pool, key=lambda r: (r.best_score, r.n_views, -r.id)).id
+
+    def best_score_of(self, cand_id: int) -> float:
+        return self._rejected[cand_id].best_score
+
+    def rejected_cluster(self, cand_id: int, cells_of: Callable[[np.ndarray], np.ndarray]) -> Candidate:
+        """The rejected cluster with its cells re-indexed on the map as it is now
+        (``cells_of``: metres -> cell indices, ``GridMap.xy_to_ij``)."""
+        cl, xy = self._clusters[cand_id]
+        return replace(cl, cells_ij=np.asarray(cells_of(xy), np.int64).reshape(-1, 2))
 
     def infos(self, live: list[GoalCandidate], robot_xy_m: tuple[float, float]) -> tuple[CandidateInfo, ...]:
         out = [CandidateInfo(c.id, c.state.value, c.cluster.centroid_xy_m, len(c.views), float(c.best_score),

@@ -63,6 +63,10 @@ class PolicyConfig:
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
+    # when exploration is exhausted, go to the rejected candidate with the best evidence (highest
+    # re-ID score of its views) and stop there, trusted, instead of stopping where the robot
+    # stands: with nothing left to explore, the best rejected guess beats any other spot
+    last_resort: bool = False
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
 

@@ -8,6 +8,10 @@ The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
                                                         |                              |
                                                      STOPPED <------(confirmed)--------+
     EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
+                                                        |
+                               (policy.last_resort, a rejected candidate left)
+                                                        v
+                                   LAST_RESORT --(in its stop region)--> STOPPED
 
 Each mode's memory is a small frozen dataclass; the agent replaces it (``dataclasses.replace``)
 rather than mutating counters, and every step ends in one frozen ``Decision`` that goes into
@@ -33,6 +37,7 @@ class Mode(str, enum.Enum):
     RESCAN = "rescan"  # no reachable frontier: forgive and look around again
     STOPPED = "stopped"  # STOP at a (confirmed) candidate
     EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
+    LAST_RESORT = "last_resort"  # nothing left to explore: heading for the best rejected candidate
 
     def __str__(self) -> str:  # records and logs show the plain name
         return self.value
@@ -117,3 +122,13 @@ class PolicyState:
     rescan: RescanState = field(default_factory=RescanState)
     motion: MotionState = field(default_factory=MotionState)
     confirmed_xy_m: tuple[tuple[float, float], ...] = ()  # centres of close-range detections
+    last_resort: "LastResortState" = field(default_factory=lambda: LastResortState())
+
+
+@dataclass(frozen=True, slots=True)
+class LastResortState:
+    """The rejected candidate being tried as the last resort (``candidate_id``) and those
+    already tried (each once: one that is rejected again is not tried a second time)."""
+
+    candidate_id: int | None = None
+    tried: frozenset[int] = frozenset()

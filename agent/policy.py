@@ -23,7 +23,9 @@ Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
   included, is in the ``AgentRecord``);
 * where to stop (``stop_rule="core"``): measured from the candidate's core cells rather than
   its nearest (possibly stray) one, and only where the map shows a line of sight to it;
-* exploration by information gain (``frontier.gain_weight_m``).
+* exploration by information gain (``frontier.gain_weight_m``);
+* the last resort (``last_resort``): when nothing is left to explore, head for the rejected
+  candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place.
 
 Rejected and unreachable candidates are blacklisted on the map (``GridMap.blacklist_cells``),
 so their points and later points there are ignored and exploration resumes.
@@ -50,7 +52,7 @@ from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
 from agent.motion import blocked_here, move_key, safe_action
-from agent.modes import SCAN_TURNS, ApproachState, Decision, Mode, PolicyState, RescanState, VerifyState
+from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
@@ -285,7 +287,7 @@ class ModIINAgent:
 
     def _reject(self, cand: Candidate, why: str, robot_xy_m: tuple[float, float]) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
-        self.memory.reject(cand, robot_xy_m)
+        self.memory.reject(cand, robot_xy_m, self.grid.ij_to_xy(cand.cells_ij))
         self._rejected_now = True
         # A candidate that never scored tau was only potential: reject its sub-tau evidence, not
         # a later detection there (a rejected true goal would otherwise be lost for good)
@@ -319,8 +321,9 @@ class ModIINAgent:
             self.grid.clear_goal()
         return self._explore(obs)
 
-    def _approach(self, obs: Observation, cand: Candidate) -> Decision | None:
-        """APPROACH (and VERIFY at the stop point); None when the candidate was rejected."""
+    def _approach(self, obs: Observation, cand: Candidate, trusted: bool = False) -> Decision | None:
+        """APPROACH (and VERIFY at the stop point); None when the candidate was rejected.
+        ``trusted``: stop at it without verification (the last resort)."""
         pc = self.config.policy
         grid, pose = self.grid, obs.pose
         stop_cells = self._stop_cells(cand)
@@ -333,7 +336,7 @@ class ModIINAgent:
         near_enough = (self._state.approach.region_unreachable or blocked_here(self.grid, self._state.motion, pose)) and region_within(
             stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
         if region[agent_ij] or near_enough:
-            return self._at_candidate(obs, cand)
+            return self._at_candidate(obs, cand, trusted)
         self._set(verify=None)
         field = self.planner.distance_field(grid, pose, extra_targets=region)
         a = self._state.approach
@@ -467,14 +470,14 @@ class ModIINAgent:
         return Decision(self._safe(plan, pose, field), Mode.VERIFY, "verify: approaching the potential candidate",
                         plan=plan, target_kind="goal", candidate=cl)
 
-    def _at_candidate(self, obs: Observation, cand: Candidate) -> Decision | None:
+    def _at_candidate(self, obs: Observation, cand: Candidate, trusted: bool = False) -> Decision | None:
         """In the stop region: VERIFY (scan for a confirming re-match), face the goal, STOP."""
         pc = self.config.policy
         pose = obs.pose
         goal_xy = self.grid.ij_to_xy(cand.cells_ij)
         k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
         bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
-        confirmed = self._confirmed(cand)
+        confirmed = trusted or self._confirmed(cand)
         verify = self._state.verify
         if verify is not None and not confirmed:
             if verify.scan_index >= len(SCAN_TURNS) or verify.scan_index >= pc.verify_scan_steps:
@@ -488,7 +491,8 @@ class ModIINAgent:
             return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.APPROACH,
                             "at the goal: turning to face it", target_kind="goal", candidate=cand)
         if confirmed:
-            why = "re-identified at close range" if pc.verify else "close-range verification off"
+            why = ("the last resort" if trusted else "re-identified at close range" if pc.verify
+                   else "close-range verification off")
             return Decision(Action.STOP, Mode.STOPPED, f"within stop radius, facing the goal ({why})",
                             target_kind="goal", candidate=cand)
         self._set(verify=VerifyState(0))
@@ -519,9 +523,9 @@ class ModIINAgent:
                 self.explorer.blacklist_target(grid, "blocked")
             return Decision(action, Mode.EXPLORE, f"frontier ({choice.reason})", plan=plan, target_kind="frontier",
                             planner_error=error)
-        return self._rescan(error)
+        return self._rescan(obs, error)
 
-    def _rescan(self, error: str | None) -> Decision:
+    def _rescan(self, obs: Observation, error: str | None) -> Decision:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
@@ -540,9 +544,40 @@ class ModIINAgent:
             self._set(rescan=r)
             return Decision(Action.TURN_LEFT, Mode.RESCAN, "no reachable frontier: looking around again",
                             planner_error=error or "no_frontier")
+        if self.config.policy.last_resort:
+            decision = self._last_resort(obs)
+            if decision is not None:
+                return decision
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
                         planner_error=error or "no_frontier")
+
+    def _last_resort(self, obs: Observation) -> Decision | None:
+        """LAST_RESORT: nothing is left to explore and no candidate stands, so head for the
+        rejected candidate with the best evidence and stop at it without verification (a
+        rejected true goal scored just below tau is a better bet than wherever the robot is).
+        Each rejected candidate is tried once, best first; None when none is left (EXHAUSTED)."""
+        while True:
+            lr = self._state.last_resort
+            cid = lr.candidate_id
+            if cid is None:
+                cid = self.memory.best_rejected(exclude=lr.tried)
+                if cid is None:
+                    return None
+                lr = LastResortState(candidate_id=cid, tried=lr.tried | {cid})
+                self._set(last_resort=lr)
+                log.info("nothing left to explore: trying rejected candidate %d (best score %.1f) as the last resort",
+                         cid, self.memory.best_score_of(cid))
+            cand = self.memory.rejected_cluster(cid, self.grid.xy_to_ij)
+            self.grid.set_goal_cells(cand.cells_ij)
+            decision = self._approach(obs, cand, trusted=True)
+            if decision is not None:
+                mode = Mode.STOPPED if decision.action == Action.STOP else Mode.LAST_RESORT
+                score = self.memory.best_score_of(cid)
+                return replace(decision, mode=mode,
+                               reason=f"last resort (rejected candidate, best score {score:.1f}): {decision.reason}")
+            self.grid.clear_goal()
+            self._set(last_resort=replace(self._state.last_resort, candidate_id=None))
 
 
 class _Pending:

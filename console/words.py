@@ -19,6 +19,7 @@ MODE_WORDS: dict[str, str] = {
     "rescan": "looking around again",
     "stopped": "stopped at the object",
     "exhausted": "gave up",
+    "last_resort": "going back to the best candidate left",
 }
 
 ACTION_WORDS: dict[str, str] = {

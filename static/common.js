@@ -87,6 +87,7 @@ const imgnav = (() => {
     look_around: "looking around", explore: "exploring", approach: "driving to the object",
     verify: "checking the object up close", rescan: "looking around again",
     stopped: "stopped at the object", exhausted: "gave up",
+    last_resort: "going back to the best candidate left",
   };
   const ACTION_WORDS = { STOP: "stop", MOVE_FORWARD: "forward", TURN_LEFT: "turn left", TURN_RIGHT: "turn right" };
   const modeWords = (m) => (m ? MODE_WORDS[m] || m.replace(/_/g, " ") : "");

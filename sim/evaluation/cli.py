@@ -28,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="; ".join(f"{s.name}: {s.help}" for s in specs))
     parser.add_argument("--out", required=True, help="output directory (episodes.jsonl, summary.json)")
     parser.add_argument("--limit", type=int, default=None, help="only the first N episodes")
+    parser.add_argument("--episode-ids", nargs="+", default=None, metavar="ID",
+                        help="only these episodes (ids, or @FILE with one id per line)")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (episodes grouped by scene)")
     parser.add_argument("--overwrite", action="store_true", help="discard earlier results in --out instead of resuming")
     parser.add_argument("--fail-fast", action="store_true", help="stop at the first episode error instead of recording it")
@@ -70,6 +72,22 @@ def ray_options(args: argparse.Namespace, num_cpus: int):
                       max_in_flight=args.ray_max_in_flight, runtime_env=env)
 
 
+def episode_ids(items: list[str] | None) -> list[str] | None:
+    """``--episode-ids`` values: ids, or ``@FILE`` naming a file of ids (one per line, # comments)."""
+    if items is None:
+        return None
+    out: list[str] = []
+    for item in items:
+        if item.startswith("@"):
+            lines = Path(item[1:]).read_text().splitlines()
+            out += [ln.split("#", 1)[0].strip() for ln in lines if ln.split("#", 1)[0].strip()]
+        else:
+            out += [s for s in item.split(",") if s]
+    if not out:
+        raise ValueError("--episode-ids names no episode")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from sim.evaluation.runner import RECORDS, SUMMARY, run_evaluation
 
@@ -83,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         ray = ray_options(args, args.workers)
         summary = run_evaluation(args.episodes, args.agent, args, out, limit=args.limit, workers=args.workers,
-                                 fail_fast=args.fail_fast, ray=ray)
+                                 fail_fast=args.fail_fast, ray=ray, episode_ids=episode_ids(args.episode_ids))
     except (FileNotFoundError, ValueError) as exc:
         log.error("%s", exc)
         return 2

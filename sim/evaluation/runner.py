@@ -54,7 +54,7 @@ import os
 import time
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import numpy as np
 
@@ -271,8 +271,11 @@ def read_records(out_dir: Path) -> list[dict[str, Any]]:
 
 def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace, out_dir: str | Path,
                    limit: int | None = None, workers: int = 1, progress: bool = True, fail_fast: bool = False,
-                   ray: RayOptions | None = None) -> dict[str, Any]:
+                   ray: RayOptions | None = None, episode_ids: Sequence[str] | None = None) -> dict[str, Any]:
     """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary.
+
+    ``episode_ids``: only these episodes of the set (in the set's order; an id the set does not
+    hold is an error), e.g. to re-run the episodes a change can affect.
 
     ``ray``: run the scenes as Ray tasks (``sim.evaluation.ray_backend``) instead of local
     worker processes; records and summary are the same."""
@@ -283,7 +286,15 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
     args = _clean_args(args)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    selected = list(es.episodes[:limit] if limit else es.episodes)
+    selected = list(es.episodes)
+    if episode_ids is not None:
+        wanted = set(episode_ids)
+        missing = sorted(wanted - {e.episode_id for e in selected})
+        if missing:
+            raise ValueError(f"{episode_dir} has no episode(s) {', '.join(missing[:5])}"
+                             f"{' ...' if len(missing) > 5 else ''}")
+        selected = [e for e in selected if e.episode_id in wanted]
+    selected = selected[:limit] if limit else selected
     done = {r["episode_id"]: r for r in read_records(out)}
     others = {r.get("agent") for r in done.values()} - {agent}
     if others:

@@ -53,3 +53,23 @@ def test_show_draws_a_map_with_the_path_and_a_goal_sheet(small_episode_set: Path
         img = read_rgb(pics / name)
         assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10, name
     assert main(["show", "--out", str(pics)]) == 2  # nothing to draw
+
+
+def test_eval_runs_only_the_named_episodes(small_episode_set: Path, tmp_path: Path) -> None:
+    from sim.episodes import load_episode_set
+
+    ids = [e.episode_id for e in load_episode_set(small_episode_set).episodes]
+    assert len(ids) >= 3
+    out = tmp_path / "some"
+    listed = tmp_path / "ids.txt"
+    listed.write_text(f"# re-run these\n{ids[2]}\n")
+    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--episode-ids", ids[0], f"@{listed}",
+                 "--out", str(out)]) == 0
+    got = [json.loads(x)["episode_id"] for x in (out / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(got) == sorted([ids[0], ids[2]])
+    assert json.loads((out / "summary.json").read_text())["episodes"] == 2
+    # an id the set does not hold is a clear error, and nothing is run
+    bad = tmp_path / "bad"
+    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--episode-ids", "val-s9-9999-9",
+                 "--out", str(bad)]) == 2
+    assert not (bad / "episodes.jsonl").exists() or not (bad / "episodes.jsonl").read_text().strip()

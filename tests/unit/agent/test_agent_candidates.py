@@ -51,3 +51,35 @@ def test_memory_reports_live_and_rejected_candidates():
     mem.reject(live[0], (0.0, 0.0))
     (info,) = mem.infos([], (1.0, 0.0))
     assert info.state == "rejected" and info.id == cl.id and info.distance_m < 2.7
+
+
+def test_rejected_clusters_are_kept_for_the_last_resort_best_evidence_first():
+    loc = GoalLocaliser(LocalisationConfig())
+    grid = GridMap()
+    _add_view(loc, Pose2D(0.0, 0.0, 0.0), 3, 60.0)
+    (cl,) = loc.candidates(grid)
+    mem = CandidateMemory()
+    assert mem.best_rejected() is None
+    weak = evaluate(cl, loc, 75.0, 2.0)
+    mem.reject(weak, (0.0, 0.0), grid.ij_to_xy(cl.cells_ij))
+    # a second, better-scoring rejected candidate elsewhere (same cluster shape, another id)
+    from dataclasses import replace
+
+    other = replace(cl, id=7, max_score=70.0)
+    mem.reject(other, (0.0, 0.0), grid.ij_to_xy(cl.cells_ij) + 1.0)
+    assert mem.best_rejected() == 7 and mem.best_rejected(exclude=frozenset({7})) == cl.id
+    assert mem.best_rejected(exclude=frozenset({7, cl.id})) is None
+    # rejecting again keeps the best evidence seen
+    mem.reject(replace(other, max_score=10.0), (0.0, 0.0), grid.ij_to_xy(cl.cells_ij) + 1.0)
+    assert mem.best_score_of(7) == 70.0
+    # the kept cells follow the map when it grows (its origin moves)
+    before = grid.ij_to_xy(cl.cells_ij)
+    assert grid.ensure_contains((-20.0, -20.0), (1.0, 1.0))
+    again = mem.rejected_cluster(cl.id, grid.xy_to_ij)
+    assert not np.array_equal(again.cells_ij, cl.cells_ij)
+    np.testing.assert_allclose(grid.ij_to_xy(again.cells_ij), before)
+    assert again.id == cl.id and again.n_points == cl.n_points
+    # without cells a rejection is recorded but not kept as a last resort
+    mem2 = CandidateMemory()
+    mem2.reject(cl, (0.0, 0.0))
+    assert mem2.best_rejected() is None and mem2.infos([], (0.0, 0.0))[0].state == "rejected"

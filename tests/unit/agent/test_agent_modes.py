@@ -81,6 +81,43 @@ def test_verify_scans_then_rejects_an_unconfirmed_candidate():
     assert after.candidate is None and after.mode in (Mode.EXPLORE, Mode.RESCAN, Mode.EXHAUSTED)
 
 
+def _rejected_then_exhausted(last_resort: bool):
+    """The goal is re-identified only from afar, so close-range verification rejects it; then
+    exploration of the two small rooms runs out."""
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
+    agent = ModIINAgent(oracle_config(verify=True, verify_range_m=1.5, look_around_turns=4, max_rescans=1,
+                                      last_resort=last_resort),
+                        oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() > 2.0,
+                        oracle_ego_mask=world.goal_mask)
+    return world, run_decisions(agent, world, max_steps=600)
+
+
+def test_last_resort_goes_back_to_the_rejected_candidate_and_stops_there():
+    world, steps = _rejected_then_exhausted(last_resort=True)
+    modes = [d.mode for d, _ in steps]
+    assert Mode.VERIFY in modes and Mode.LAST_RESORT in modes
+    k = modes.index(Mode.LAST_RESORT)
+    # it comes after the rejection and after exploration ran out (rescans spent)
+    assert modes.index(Mode.VERIFY) < modes.index(Mode.RESCAN) < k
+    rejected = [c for c in steps[k - 1][1].candidates if c.state == "rejected"]
+    assert len(rejected) == 1
+    tried = [d for d, _ in steps[k:] if d.mode == Mode.LAST_RESORT]
+    assert all(d.candidate is not None and d.candidate.id == rejected[0].id and d.target_kind == "goal" for d in tried)
+    assert all(d.reason.startswith("last resort (rejected candidate, best score") for d in tried)
+    last, rec = steps[-1]
+    assert last.action == Action.STOP and last.mode == Mode.STOPPED and "the last resort" in last.reason
+    assert rec.candidate_id == rejected[0].id and len(rec.goal_points_xyz) > 0
+    assert world.distance_to_goal() < 1.0
+
+
+def test_without_the_last_resort_the_same_run_stops_exhausted_where_it_stands():
+    world, steps = _rejected_then_exhausted(last_resort=False)
+    modes = [d.mode for d, _ in steps]
+    assert Mode.LAST_RESORT not in modes and Mode.STOPPED not in modes
+    assert steps[-1][0].mode == Mode.EXHAUSTED and steps[-1][0].action == Action.STOP
+
+
 def test_approach_turns_to_face_before_stopping():
     boxes, goal, _ = two_rooms()
     # in room B, within the stop radius of the goal but facing away from it
@@ -103,7 +140,8 @@ def test_rescan_then_exhausted():
 
 
 def test_mode_names_are_the_record_strings():
-    assert [m.value for m in Mode] == ["look_around", "explore", "approach", "verify", "rescan", "stopped", "exhausted"]
+    assert [m.value for m in Mode] == ["look_around", "explore", "approach", "verify", "rescan", "stopped", "exhausted",
+                                       "last_resort"]
     assert str(Mode.VERIFY) == "verify"
 
 

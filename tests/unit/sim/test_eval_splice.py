@@ -1,0 +1,63 @@
+"""sim.evaluation.splice: re-run episodes replace the base's only where the change can act."""
+
+import json
+
+import pytest
+
+from sim.evaluation.splice import main, missing_reruns, same_until_base_end, splice
+
+
+def rec(eid, actions, final_mode, success=False, home=1):
+    poses, x = [[0.0, 0.0, 0.0]], 0.0
+    for a in actions:
+        x += 0.25 if a == "MOVE_FORWARD" else 0.0
+        poses.append([x, 0.0, 0.0])
+    return {"episode_id": eid, "scene_seed": home, "agent": "oracle", "category": "bed", "success": success,
+            "spl": 0.5 if success else 0.0, "ne": 0.2 if success else 3.0, "steps": len(actions),
+            "max_steps_reached": False, "called_stop": actions[-1:] == ["STOP"], "path_length_m": x,
+            "shortest_path_m": 1.0, "difficulty": "easy",
+            "trajectory": {"poses_world": poses, "actions": actions}, "modiin": {"final_mode": final_mode}}
+
+
+F, L, S = "MOVE_FORWARD", "TURN_LEFT", "STOP"
+BASE = [rec("e0", [F, L, S], "exhausted"), rec("e1", [F, F, S], "stopped", success=True, home=2)]
+
+
+def test_a_rerun_that_repeats_the_base_until_its_end_replaces_it():
+    rerun = [rec("e0", [F, L, F, F, S], "stopped", success=True)]
+    assert same_until_base_end(BASE[0], rerun[0]) is None
+    out = splice(BASE, rerun, "exhausted")
+    assert [r["episode_id"] for r in out] == ["e0", "e1"]
+    assert out[0]["success"] and out[0]["steps"] == 5 and out[1] is BASE[1]
+
+
+def test_a_rerun_that_decided_differently_before_the_base_end_is_refused():
+    diverged = rec("e0", [L, F, F, S], "stopped", success=True)
+    assert "actions differ at step 0" in same_until_base_end(BASE[0], diverged)
+    with pytest.raises(ValueError, match="actions differ"):
+        splice(BASE, [diverged], "exhausted")
+    # an episode whose base did not end where the change acts cannot be re-run into it
+    with pytest.raises(ValueError, match="ended in 'stopped'"):
+        splice(BASE, [rec("e1", [F, F, F, S], "stopped", home=2)], "exhausted")
+    with pytest.raises(ValueError, match="not in the base"):
+        splice(BASE, [rec("zz", [S], "stopped")], "exhausted")
+
+
+def test_main_writes_the_spliced_records_and_refuses_an_incomplete_rerun(tmp_path):
+    def write(name, records):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+        return str(d)
+
+    base = write("base", BASE)
+    empty = write("empty", [])
+    assert main([base, empty, "--out", str(tmp_path / "none")]) == 2  # e0 ended exhausted and was not re-run
+    assert missing_reruns(BASE, [], "exhausted") == ["e0"]
+    rerun = write("rerun", [rec("e0", [F, L, F, S], "stopped", success=True)])
+    out = tmp_path / "out"
+    assert main([base, rerun, "--out", str(out)]) == 0
+    lines = [json.loads(x) for x in (out / "episodes.jsonl").read_text().splitlines()]
+    assert [r["success"] for r in lines] == [True, True]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["episodes"] == 2 and summary["sr"] == 1.0 and summary["spliced_from"]["rerun"] == rerun
