@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
+from agent.background import Pending
 from agent.candidates import CandidateMemory, CandidateState, GoalCandidate, evaluate
 from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
@@ -98,7 +98,7 @@ class ModIINAgent:
         self._record: AgentRecord | None = None
         self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
-        self._goal_mask: _Pending | None = None
+        self._goal_mask: Pending | None = None
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -126,7 +126,7 @@ class ModIINAgent:
         # the first action: GrabCut (0.1-0.5 s) runs beside the first steps, on a thread of its
         # own (OpenCV releases the GIL); the first localisation waits for it. Same mask, same
         # decisions, shorter start.
-        self._goal_mask = _Pending(self.segmenter.mask, goal_image) if self.segmenter is not None else None
+        self._goal_mask = Pending(self.segmenter.mask, goal_image) if self.segmenter is not None else None
         self._prev_pose: Pose2D | None = None
         self._prev_action: Action | None = None
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
@@ -578,29 +578,6 @@ class ModIINAgent:
                                reason=f"last resort (rejected candidate, best score {score:.1f}): {decision.reason}")
             self.grid.clear_goal()
             self._set(last_resort=replace(self._state.last_resort, candidate_id=None))
-
-
-class _Pending:
-    """``fn(arg)`` computed on a daemon thread; ``result()`` waits for it and re-raises its error."""
-
-    def __init__(self, fn: Callable[[np.ndarray], np.ndarray], arg: np.ndarray) -> None:
-        self._value: np.ndarray | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, args=(fn, arg), name="goal-mask", daemon=True)
-        self._thread.start()
-
-    def _run(self, fn: Callable[[np.ndarray], np.ndarray], arg: np.ndarray) -> None:
-        try:
-            self._value = fn(arg)
-        except BaseException as exc:  # handed to the caller of result(), not swallowed
-            self._error = exc
-
-    def result(self) -> np.ndarray:
-        self._thread.join()
-        if self._error is not None:
-            raise RuntimeError(f"goal-image segmentation failed: {self._error}") from self._error
-        assert self._value is not None
-        return self._value
 
 
 def _ms(t0: float) -> float:

@@ -20,11 +20,11 @@ import argparse
 import logging
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.episode_sets import load_or_generate  # noqa: E402
 
 PARTS = ("mapping", "reid", "reid_extract", "reid_gate", "reid_match", "localisation", "planning", "total")
 
@@ -45,21 +45,10 @@ def main() -> int:
     from agent.policy import ModIINAgent
     from agent.loop import run_loop
     from sim.backend import SimBackend
-    from sim.episodes import load_episode_set
     from sim.world import SimWorld
 
     torch.set_num_threads(args.threads)
-    tmp = None
-    ep_dir = args.episodes
-    if ep_dir is None:
-        from sim.episode_gen import generate_episode_set
-
-        tmp = tempfile.TemporaryDirectory()
-        ep_dir = tmp.name
-        generate_episode_set("val", 0, args.count, ep_dir, progress=False)
-    es = load_episode_set(ep_dir)
-    if es.split != "val":
-        print(f"warning: {ep_dir} is a {es.split} set, not val", file=sys.stderr)
+    es, tmp = load_or_generate(args.episodes, "val", 0, args.count)
     cfg = load_agent_config(args.config)
     from dataclasses import replace
 

@@ -21,11 +21,11 @@ import argparse
 import logging
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.episode_sets import load_or_generate  # noqa: E402
 
 
 def main() -> int:
@@ -48,7 +48,6 @@ def main() -> int:
     from agent.reid.identifier import resolve_gate_threshold, resolve_tau
     from agent.reid.xfeat import XFeatLighterGlue
     from sim.backend import SimBackend
-    from sim.episodes import load_episode_set
     from sim.oracle_agent import OracleAgent
     from sim.world import SimWorld
 
@@ -65,17 +64,7 @@ def main() -> int:
     matchers = {s: XFeatLighterGlue(rc.max_side_px, rc.min_confidence, early_stop=s) for s in settings}
     extractor = matchers[-1.0]
 
-    tmp = None
-    ep_dir = args.episodes
-    if ep_dir is None:
-        from sim.episode_gen import generate_episode_set
-
-        tmp = tempfile.TemporaryDirectory()
-        ep_dir = tmp.name
-        generate_episode_set("train", 7, args.count, ep_dir, progress=False)
-    es = load_episode_set(ep_dir)
-    if es.split != "train":
-        print(f"warning: {ep_dir} is a {es.split} set; tune on train", file=sys.stderr)
+    es, tmp = load_or_generate(args.episodes, "train", 7, args.count)
 
     rows: list[dict] = []  # per frame: gate score, and per setting (score, ms, layers)
     for ep in list(es.episodes)[: args.count]:
