@@ -2,14 +2,15 @@
 
     .venv/bin/python benchmarks/bench_agent.py [--episodes DIR] [--count 3] [--steps 150] [--threads 2]
 
-Runs the default agent (agent/configs/sim.yaml, XFeat + LighterGlue, re-ID gate on) through
-the real simulator on the first ``--count`` episodes of a val episode set (a small one is
+Runs the default agent (agent/configs/sim.yaml: XFeat + LighterGlue, re-ID gate, early stop as
+configured) through the real simulator on the first ``--count`` episodes of a val episode set (a small one is
 generated into a temporary directory when none is given) for at most ``--steps`` steps each.
-A second agent, identical but with the gate off, acts on the very same observations right
-after it (its actions are discarded), so the two are measured back to back on the same frames.
-Prints, for both, the median milliseconds per step of the whole ``act`` (total) and its parts:
-mapping, reid (feature extraction, gate, full matching), localisation and planning, the ratio
-gate on / off, and the share of frames on which the full matcher ran. The simulator's render
+Shadow agents, identical but without LighterGlue's early stop ("all layers") and without the gate
+either ("no gate, all layers": the agent before issue 9), act on the very same observations right
+after it (their actions are discarded), so all are measured back to back on the same frames.
+Prints, for each, the median milliseconds per step of the whole ``act`` (total) and its parts:
+mapping, reid (feature extraction, gate, full matching), localisation and planning, the ratios
+default / shadow, and the share of frames on which the full matcher ran. The simulator's render
 time is reported apart. Target: total <= 50 ms median with the gate on, 2 threads.
 Timings from a loaded machine are not final: run it on a quiet one.
 """
@@ -54,8 +55,14 @@ def main() -> int:
 
     cfg = replace(cfg, reid=replace(cfg.reid, num_threads=args.threads))
     agent = ModIINAgent(cfg)
-    shadow = ModIINAgent(replace(cfg, reid=replace(cfg.reid, gate=False)))
-    samples = {name: {k: [] for k in PARTS} for name in ("gate on", "gate off")}
+    # the shadows: the same agent without what issue 9 added, acting on the very same frames
+    variants = {"default": cfg}
+    if cfg.reid.early_stop != -1.0:
+        variants["all layers"] = replace(cfg, reid=replace(cfg.reid, early_stop=-1.0))
+    if cfg.reid.gate:
+        variants["no gate, all layers"] = replace(cfg, reid=replace(cfg.reid, gate=False, early_stop=-1.0))
+    shadows = {name: ModIINAgent(c) for name, c in variants.items() if name != "default"}
+    samples = {name: {k: [] for k in PARTS} for name in variants}
     full_runs = {name: 0 for name in samples}
 
     def keep(name: str, rec) -> None:
@@ -65,26 +72,28 @@ def main() -> int:
         full_runs[name] += bool(rec is not None and rec.reid_full_matcher)
 
     class Timings:
-        """The driving agent's record, and the gate-off agent on the very same frame, back to back
-        (its action is discarded); a before-apply sink, so it sees the frame the agent acted on."""
+        """The driving agent's record, and each shadow agent on the very same frame, back to back
+        (their actions are discarded); a before-apply sink, so they see the frame the agent acted on."""
 
         def before_apply(self, s) -> None:
-            keep("gate on", s.record)
-            shadow.act(s.obs)
-            keep("gate off", shadow.last_record)
+            keep("default", s.record)
+            for name, shadow in shadows.items():
+                shadow.act(s.obs)
+                keep(name, shadow.last_record)
 
         def step(self, s) -> None:
             pass
 
     class ShadowReset:
-        """Resets the gate-off agent with the episode's goal when the loop resets the driver."""
+        """Resets the shadow agents with the episode's goal when the loop resets the driver."""
 
         def __init__(self, backend) -> None:
             self.backend = backend
 
         def reset(self):
             obs = self.backend.reset()
-            shadow.reset(obs.goal_image)
+            for shadow in shadows.values():
+                shadow.reset(obs.goal_image)
             return obs
 
         def __getattr__(self, name):
@@ -101,21 +110,27 @@ def main() -> int:
         backend.close()
     for w in worlds.values():
         w.close()
-    n = len(samples["gate on"]["total"])
+    n = len(samples["default"]["total"])
     print(f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
-          f"{cfg.reid.goal_max_keypoints} goal), torch threads {args.threads}, {n} steps of "
-          f"{min(args.count, len(es.episodes))} {es.split} episodes; the same frames with the gate on and off")
+          f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, early stop "
+          f"{cfg.reid.early_stop:g}, torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
+          f"{es.split} episodes; every variant on the same frames, back to back")
     med = {name: {k: statistics.median(v) for k, v in per.items() if v} for name, per in samples.items()}
-    print(f"  {'part':<13} {'gate on':>10} {'p90':>8} {'gate off':>10} {'p90':>8}   on/off")
+    names = list(variants)
+    print(f"  {'part':<13}" + "".join(f" {name:>20} {'p90':>8}" for name in names)
+          + "".join(f"   default/{name}" for name in names[1:]))
     for k in PARTS:
-        if k not in med["gate on"] or k not in med["gate off"]:
+        if any(k not in med[name] for name in names):
             continue
-        on, off = med["gate on"][k], med["gate off"][k]
-        p90 = {name: sorted(samples[name][k])[int(0.9 * (len(samples[name][k]) - 1))] for name in samples}
-        ratio = f"{on / off:6.2f}" if off > 0.05 else "     -"
-        print(f"  {k:<13} {on:8.1f} ms {p90['gate on']:6.1f} ms {off:8.1f} ms {p90['gate off']:6.1f} ms   {ratio}")
-    print(f"  full matcher ran on {full_runs['gate on']} of {n} frames with the gate on "
-          f"({100 * full_runs['gate on'] / max(n, 1):.1f}%), {full_runs['gate off']} of {n} with it off")
+        cells = []
+        for name in names:
+            v = sorted(samples[name][k])
+            cells.append(f" {med[name][k]:17.1f} ms {v[int(0.9 * (len(v) - 1))]:6.1f} ms")
+        ratios = [f"   {med['default'][k] / med[name][k]:{len('default/' + name)}.2f}" if med[name][k] > 0.05
+                  else "   " + "-".rjust(len("default/" + name)) for name in names[1:]]
+        print(f"  {k:<13}" + "".join(cells) + "".join(ratios))
+    print("  full matcher ran on " + ", ".join(f"{full_runs[name]} of {n} frames ({100 * full_runs[name] / max(n, 1):.1f}%) "
+                                               f"{name}" for name in names))
     if sim_ms:
         print(f"  (simulator apply+render per step, median over episodes {statistics.median(sim_ms):.1f} ms, "
               "not part of the agent)")

@@ -65,7 +65,8 @@ def shared_matcher(reid_config: Any) -> Any:
     """The process-wide matcher for a re-ID config (built on first use)."""
     from agent.reid.identifier import make_matcher
 
-    key = (reid_config.matcher, reid_config.max_side_px, reid_config.min_confidence, reid_config.sift_ratio)
+    key = (reid_config.matcher, reid_config.max_side_px, reid_config.min_confidence, reid_config.sift_ratio,
+           reid_config.early_stop)  # the early stop changes scores: a matcher of its own
     with _matchers_lock:
         if key not in _matchers:
             _matchers[key] = make_matcher(reid_config)
@@ -139,7 +140,7 @@ def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> 
         return config, {"kind": "deployment_calibration", "path": str(own), **facts}
     if reid.calibration_file:
         return config, {"kind": "yaml_calibration_file", "path": str(reid.calibration_file)}
-    packaged = calibration_path(reid.matcher, reid.score)
+    packaged = calibration_path(reid.matcher, reid.score, reid.early_stop)
     note = "simulator goal pairs (imgnav calibrate), not this deployment's camera"
     if own is not None:
         note += f"; no {own} yet (calibrate from the operator's photos)"

@@ -90,7 +90,7 @@ def tau_in_force(data_dir: Path, deployment: str) -> dict[str, Any]:
 
     reid = load_agent_config(deployment).reid
     where = "the deployment config" if reid.tau is not None else (
-        reid.calibration_file or f"the packaged simulator calibration ({calibration_path(reid.matcher, reid.score).name})"
+        reid.calibration_file or f"the packaged simulator calibration ({calibration_path(reid.matcher, reid.score, reid.early_stop).name})"
     )
     return {"tau": resolve_tau(reid), "matcher": reid.matcher, "score": reid.score, "source": where, "file": None, "saved": None}
 
@@ -174,6 +174,7 @@ class Calibrator:
         doc = {
             "matcher": proposal["matcher"],
             "score": proposal["score"],
+            "early_stop": proposal["early_stop"],  # the matcher setting the scores were made with
             "tau": proposal["tau"],
             "max_f": proposal["max_f"],
             "precision": proposal["precision"],
@@ -255,6 +256,7 @@ class Calibrator:
             "proposal": {
                 "matcher": reid.matcher,
                 "score": reid.score,
+                "early_stop": reid.early_stop,
                 "tau": chosen["tau"],
                 "max_f": chosen["max_f"],
                 "precision": chosen["precision"],

@@ -51,21 +51,31 @@ class ReIDConfig:
     gate_threshold: float | None = None
 
 
-def calibration_path(matcher: str, kind: str) -> Path:
-    return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}.json")))
+def calibration_path(matcher: str, kind: str, early_stop: float = -1.0) -> Path:
+    """The packaged calibration of a matcher and score: ``<matcher>_<kind>.json`` for the full
+    matcher (all layers), ``<matcher>_<kind>_es<early_stop>.json`` with LightGlue's early stop
+    (its scores differ a little, so it has a tau and a gate threshold of its own)."""
+    suffix = "" if early_stop == -1.0 else f"_es{early_stop:g}"
+    return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}{suffix}.json")))
 
 
 def _calibration(config: ReIDConfig) -> tuple[Path, dict]:
-    path = Path(config.calibration_file) if config.calibration_file else calibration_path(config.matcher, config.score)
+    path = (Path(config.calibration_file) if config.calibration_file
+            else calibration_path(config.matcher, config.score, config.early_stop))
     if not path.is_file():
         raise FileNotFoundError(
             f"no re-ID threshold: set reid.tau or run `imgnav calibrate --matcher {config.matcher} "
-            f"--score {config.score}` (looked for {path})"
+            f"--score {config.score}` with reid.early_stop {config.early_stop:g} (looked for {path})"
         )
     data = json.loads(path.read_text())
     if data.get("matcher") != config.matcher or data.get("score") != config.score:
         raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, "
                          f"not {config.matcher}/{config.score}")
+    # a file without the key predates the early stop: it was scored with all layers
+    calibrated_es = float(data.get("early_stop", -1.0))
+    if calibrated_es != float(config.early_stop):
+        raise ValueError(f"{path} was calibrated with reid.early_stop {calibrated_es:g}, the config asks for "
+                         f"{config.early_stop:g}: calibrate with that setting, or set reid.tau")
     return path, data
 
 

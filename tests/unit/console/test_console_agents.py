@@ -30,3 +30,13 @@ def test_shared_matcher_accepts_read_only_images():
         warnings.simplefilter("error")  # torch warns about non-writable arrays
         features = agent.reid.matcher.extract(image, 64)
     assert features.keypoints_xy.shape[1] == 2
+
+
+def test_a_different_early_stop_gets_a_matcher_of_its_own():
+    from agent.reid import ReIDConfig
+
+    agents._matchers.clear()
+    full = agents.shared_matcher(ReIDConfig(num_threads=1))
+    early = agents.shared_matcher(ReIDConfig(num_threads=1, early_stop=0.95))
+    assert early is not full and agents.shared_matcher(ReIDConfig(num_threads=1)) is full
+    assert early._glue.net.conf.depth_confidence == 0.95 and full._glue.net.conf.depth_confidence == -1.0

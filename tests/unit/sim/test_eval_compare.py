@@ -44,9 +44,23 @@ def test_compare_tables_use_only_the_common_episodes(tmp_path):
     # base on the common episodes a0, a1: SR 0.5; the variant: 1.0, +0.5 paired, one won
     assert any(f"{b} (v)" in r and "| 0.500 [" in r for r in rows)
     assert any(f"{v} (w)" in r and "| 1.000 [" in r for r in rows)
-    assert any(f"{v} (w)" in r and "+0.500" in r and r.rstrip().endswith("| 1 | 0 |") for r in rows)
+    assert any(f"{v} (w)" in r and "+0.500" in r and r.rstrip().endswith("| 1 | 0 | 0 of 2 |") for r in rows)
     # failure counts on the common episodes: the base lost a1 to re-ID
     assert any(f"{b} (v)" in r and r.startswith(f"| {b} (v) | 1 | 1 | 0 |") for r in rows)
+
+
+def test_same_actions_and_cost_against_the_first_run(tmp_path):
+    def timed(eid, home, actions, wall_s, agent_ms):
+        return {**rec(eid, home, True), "trajectory": {"actions": actions},
+                "timing": {"wall_s": wall_s, "agent_ms_per_step": agent_ms, "sim_ms_per_step": 50.0}}
+
+    b = write(tmp_path, "base", [timed("a0", 1, [1, 2, 0], 100.0, 90.0), timed("b0", 2, [3, 0], 200.0, 110.0)])
+    v = write(tmp_path, "var", [timed("a0", 1, [1, 2, 0], 50.0, 40.0), timed("b0", 2, [3, 1, 0], 100.0, 60.0)],)
+    rows = [line for line in compare([b, v]).splitlines() if line.startswith("| ")]
+    assert any(r.startswith(f"| {v} (v) |") and r.rstrip().endswith("| 0 | 0 | 1 of 2 |") for r in rows)
+    # base: 2 episodes in 300 s = 24 per hour, agent median 100 ms; variant: 48 per hour, twice the rate
+    assert f"| {b} (v) | 100 | 50 | 24.0 | 1.00 |" in rows
+    assert f"| {v} (v) | 50 | 50 | 48.0 | 2.00 |" in rows
 
 
 def test_bad_inputs_are_clear_errors(tmp_path, capsys):

@@ -46,7 +46,7 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
     for kind, tau in (("conf", 5.0), ("count", 10.0)):
         Path(str(cal).format(kind=kind)).write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau}))
     monkeypatch.setattr("agent.reid.identifier.calibration_path",
-                        lambda matcher, kind: Path(str(cal).format(kind=kind)))
+                        lambda matcher, kind, early_stop=-1.0: Path(str(cal).format(kind=kind)))
     records = tmp_path / "episodes.jsonl"
     # recorded frames: the gate score is about 1.5 x the full score near and above tau
     full = np.array([0.0, 1.0, 3.0, 6.0, 8.0, 20.0])
