@@ -109,6 +109,9 @@ class MotionState:
 
     blocked: frozenset[tuple[int, int, int]] = frozenset()
     blocked_repeats: int = 0
+    # the run of alternating turns (left, right, left, ...) that ended with the last action
+    alternating_turns: int = 0
+    last_action: Action | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -60,3 +60,26 @@ def safe_action(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, p
     far = path[min(len(path) - 1, 8)]
     err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
     return (Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT), replace(motion, blocked_repeats=motion.blocked_repeats + 1)
+
+
+def after_action(motion: MotionState, action: Action) -> MotionState:
+    """The memory after the robot took ``action``: the run of alternating turns (left, right,
+    left, ... on the spot: a turn never moves the robot) that ends with it."""
+    turns = (Action.TURN_LEFT, Action.TURN_RIGHT)
+    if action not in turns:
+        n = 0
+    elif motion.last_action in turns and motion.last_action != action:
+        n = max(motion.alternating_turns, 1) + 1
+    else:
+        n = 1
+    return replace(motion, alternating_turns=n, last_action=action)
+
+
+def remark_blocked_moves(grid: GridMap, motion: MotionState, pose: Pose2D) -> int:
+    """Put a collision mark back on the map for every forward move from this cell that failed
+    (a rescan may have forgiven the marks the motion memory still holds); how many."""
+    i, j, _ = move_key(grid, pose)
+    headings = [h for h in range(N_HEADINGS) if (i, j, h) in motion.blocked]
+    for h in headings:
+        grid.mark_collision(Pose2D(pose.x_m, pose.y_m, h * math.radians(TURN_ANGLE_DEG)))
+    return len(headings)

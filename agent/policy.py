@@ -51,7 +51,7 @@ from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
-from agent.motion import blocked_here, move_key, safe_action
+from agent.motion import after_action, blocked_here, move_key, remark_blocked_moves, safe_action
 from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
@@ -143,6 +143,7 @@ class ModIINAgent:
         # 1. mapping (with collision marks for forward moves that did not move the robot)
         t = time.perf_counter()
         if self._prev_pose is not None:
+            self._set(motion=after_action(self._state.motion, self._prev_action))
             if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
                 self.grid.mark_collision(self._prev_pose)
                 m = self._state.motion
@@ -194,7 +195,12 @@ class ModIINAgent:
         # 4. decision and planning
         t = time.perf_counter()
         self._rejected_now = False
+        broke = 0 < pc.oscillation_turns <= self._state.motion.alternating_turns
+        if broke:
+            self._break_oscillation(obs)
         decision = self._decide(obs, candidates)
+        if broke:
+            decision = replace(decision, reason=f"turn-in-place livelock broken; {decision.reason}")
         timings["planning"] = _ms(t)
 
         action = decision.action
@@ -238,6 +244,16 @@ class ModIINAgent:
 
     def _set(self, **changes) -> None:
         self._state = replace(self._state, **changes)
+
+    def _break_oscillation(self, obs: Observation) -> None:
+        """Turned to and fro ``oscillation_turns`` times (config.py says why): re-mark the failed
+        moves from here, give up the frontier, spend one rescan's forgiving."""
+        n = remark_blocked_moves(self.grid, self._state.motion, obs.pose)
+        if self._state.mode == Mode.EXPLORE:
+            self.explorer.blacklist_target(self.grid, "oscillating")
+        r = self._state.rescan
+        self._set(motion=replace(self._state.motion, alternating_turns=0), rescan=replace(r, rescans_left=max(0, r.rescans_left - 1)))
+        log.info("turned to and fro on the spot: %d blocked moves re-marked, frontier given up", n)
 
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
         action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion)

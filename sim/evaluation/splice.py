@@ -15,6 +15,10 @@ RERUN's records in place of the episodes RERUN holds, after checking the claim o
 
 A re-run that fails a check is an error (nothing is written): the splice would not be the
 variant's result.
+
+``--oscillation N`` splices the turn-in-place guard (``policy.oscillation_turns: N``) instead: it
+acts only after N alternating turns in a row, so the base episodes without such a run are
+untouched, and a re-run must repeat its base up to the action that completed the run.
 """
 
 from __future__ import annotations
@@ -22,33 +26,92 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 from sim.evaluation.runner import RECORDS, SUMMARY, _json_safe, read_records
 
 
-def same_until_base_end(base: dict[str, Any], rerun: dict[str, Any], tol_m: float = 1e-6) -> str | None:
-    """None when ``rerun`` repeats ``base``'s trajectory up to the base's final action, else why not."""
+@dataclass(frozen=True, slots=True)
+class ActsAt:
+    """Where a change can first act in a base episode.
+
+    ``ended_in``: at the base's final step, when the episode ended in that final mode (the last
+    resort acts where the base stopped ``exhausted``). ``oscillation``: at the step after the
+    base's first run of that many alternating turns (left, right, left, ... on the spot; the
+    turn-in-place guard counts the same run of the agent's own actions)."""
+
+    ended_in: str | None = None
+    oscillation: int | None = None
+
+    def untouched(self, rec: dict[str, Any]) -> int | None:
+        """How many of the base's leading actions the change cannot alter (None: it never acts)."""
+        actions = (rec.get("trajectory") or {}).get("actions") or []
+        if self.oscillation is not None:
+            k = first_oscillation(actions, self.oscillation)
+            return None if k is None else k + 1
+        if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
+            return None
+        return max(len(actions) - 1, 0)
+
+    def why_not(self, rec: dict[str, Any]) -> str:
+        if self.oscillation is not None:
+            return f"the base never turned to and fro {self.oscillation} times in a row"
+        return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
+
+
+def _turn(a: Any) -> int:
+    """+1 for a left turn, -1 for a right turn, 0 otherwise (actions as ints or names)."""
+    from agent.types import Action
+
+    act = Action[a] if isinstance(a, str) else Action(int(a))
+    return {Action.TURN_LEFT: 1, Action.TURN_RIGHT: -1}.get(act, 0)
+
+
+def first_oscillation(actions: Sequence[Any], n: int) -> int | None:
+    """Index of the action that completes the first run of ``n`` alternating turns, or None."""
+    run, prev = 0, 0
+    for k, a in enumerate(actions):
+        t = _turn(a)
+        run = 0 if t == 0 else (run + 1 if prev == -t else 1)
+        prev = t
+        if run >= n:
+            return k
+    return None
+
+
+def same_until(base: dict[str, Any], rerun: dict[str, Any], n_actions: int, tol_m: float = 1e-6) -> str | None:
+    """None when ``rerun`` took the base's first ``n_actions`` actions from the same poses, else why not."""
     bt, rt = base.get("trajectory") or {}, rerun.get("trajectory") or {}
     bp, rp = bt.get("poses_world") or [], rt.get("poses_world") or []
     ba, ra = bt.get("actions") or [], rt.get("actions") or []
-    n = len(ba)
-    if n == 0:
+    if not ba:
         return "the base record has no trajectory"
-    if len(ra) < n - 1 or len(rp) < n:
-        return f"the re-run is shorter ({len(ra)} steps) than the base's {n - 1} before its end"
-    if ra[: n - 1] != ba[: n - 1]:
+    if len(ra) < n_actions or len(rp) < n_actions + 1:
+        return f"the re-run is shorter ({len(ra)} steps) than the base's {n_actions} before the change acts"
+    if ra[:n_actions] != ba[:n_actions]:
         k = next(i for i, (a, b) in enumerate(zip(ra, ba)) if a != b)
         return f"actions differ at step {k} ({ba[k]} in the base, {ra[k]} in the re-run)"
-    for i in range(n):
+    for i in range(min(n_actions + 1, len(bp))):
         if any(abs(float(x) - float(y)) > tol_m for x, y in zip(bp[i], rp[i])):
             return f"poses differ before step {i}"
     return None
 
 
-def splice(base: list[dict[str, Any]], rerun: list[dict[str, Any]], ended_in: str) -> list[dict[str, Any]]:
-    """The base records with the re-run's in place (base order); ValueError when a check fails."""
+def same_until_base_end(base: dict[str, Any], rerun: dict[str, Any], tol_m: float = 1e-6) -> str | None:
+    """None when ``rerun`` repeats ``base``'s trajectory up to the base's final action, else why not."""
+    return same_until(base, rerun, max(len((base.get("trajectory") or {}).get("actions") or []) - 1, 0), tol_m)
+
+
+def _acts_at(acts_at: ActsAt | str) -> ActsAt:
+    return ActsAt(ended_in=acts_at) if isinstance(acts_at, str) else acts_at
+
+
+def splice(base: list[dict[str, Any]], rerun: list[dict[str, Any]], acts_at: ActsAt | str) -> list[dict[str, Any]]:
+    """The base records with the re-run's in place (base order); ValueError when a check fails.
+    ``acts_at``: an ``ActsAt``, or a final mode (``ActsAt(ended_in=...)``)."""
+    acts_at = _acts_at(acts_at)
     by_id = {r["episode_id"]: r for r in base}
     problems = []
     for r in rerun:
@@ -56,11 +119,11 @@ def splice(base: list[dict[str, Any]], rerun: list[dict[str, Any]], ended_in: st
         if b is None:
             problems.append(f"{r['episode_id']}: not in the base")
             continue
-        final = (b.get("modiin") or {}).get("final_mode")
-        if final != ended_in:
-            problems.append(f"{r['episode_id']}: the base ended in {final!r}, not {ended_in!r}")
+        n = acts_at.untouched(b)
+        if n is None:
+            problems.append(f"{r['episode_id']}: {acts_at.why_not(b)}")
             continue
-        why = same_until_base_end(b, r)
+        why = same_until(b, r, n)
         if why:
             problems.append(f"{r['episode_id']}: {why}")
     if problems:
@@ -69,11 +132,11 @@ def splice(base: list[dict[str, Any]], rerun: list[dict[str, Any]], ended_in: st
     return [new.get(b["episode_id"], b) for b in base]
 
 
-def missing_reruns(base: list[dict[str, Any]], rerun: list[dict[str, Any]], ended_in: str) -> list[str]:
-    """Base episodes that ended in ``ended_in`` and have no re-run (the splice would keep them as they were)."""
+def missing_reruns(base: list[dict[str, Any]], rerun: list[dict[str, Any]], acts_at: ActsAt | str) -> list[str]:
+    """Base episodes where the change acts that have no re-run (the splice would keep them as they were)."""
+    acts_at = _acts_at(acts_at)
     have = {r["episode_id"] for r in rerun}
-    return [b["episode_id"] for b in base
-            if (b.get("modiin") or {}).get("final_mode") == ended_in and b["episode_id"] not in have]
+    return [b["episode_id"] for b in base if acts_at.untouched(b) is not None and b["episode_id"] not in have]
 
 
 def summarize(records: list[dict[str, Any]], base: str, rerun: str) -> dict[str, Any]:
@@ -97,15 +160,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("rerun", help="imgnav eval output directory of the re-run episodes (the changed variant)")
     p.add_argument("--out", required=True)
     p.add_argument("--ended-in", default="exhausted", help="the base episodes' final mode from which the change acts")
+    p.add_argument("--oscillation", type=int, default=None, metavar="N",
+                   help="instead: the change acts after the base's first N alternating turns on the spot")
     args = p.parse_args(argv)
+    acts_at = ActsAt(oscillation=args.oscillation) if args.oscillation else ActsAt(ended_in=args.ended_in)
     base, rerun = read_records(Path(args.base)), read_records(Path(args.rerun))
-    missing = missing_reruns(base, rerun, args.ended_in)
+    missing = missing_reruns(base, rerun, acts_at)
     if missing:
-        print(f"error: {len(missing)} base episode(s) ended in {args.ended_in!r} without a re-run: "
+        print(f"error: {len(missing)} base episode(s) where the change acts have no re-run: "
               f"{', '.join(missing[:6])}", file=sys.stderr)
         return 2
     try:
-        records = splice(base, rerun, args.ended_in)
+        records = splice(base, rerun, acts_at)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -207,3 +207,38 @@ def test_stop_rule_core_stops_in_sight_of_the_goal():
     steps = run_decisions(oracle_agent(world, stop_rule="core", stop_radius_m=0.6), world)
     last, rec = steps[-1]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 0.8
+
+
+def _kerb_world():
+    """two_rooms' door blocked by a kerb too low for the map's obstacle band (the robot hits it,
+    the camera's points stay below 0.10 m): the goal room cannot be reached."""
+    walls = room_walls(-3.0, -2.0, 5.0, 2.0)
+    walls += [(1.0, -2.0, 1.1, -0.45, 2.5), (1.0, 0.45, 1.1, 2.0, 2.5)]
+    boxes = walls + [(0.9, -0.45, 1.2, 0.45, 0.05), (4.0, 1.0, 4.6, 1.6, 0.6)]
+    return BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), len(boxes) - 1)
+
+
+def _longest_to_and_fro(steps) -> int:
+    run = best = 1
+    for (a, _), (b, _) in zip(steps, steps[1:]):
+        run = run + 1 if {a.action, b.action} == {Action.TURN_LEFT, Action.TURN_RIGHT} else 1
+        best = max(best, run)
+    return best
+
+
+def test_the_turn_in_place_livelock_is_broken_and_the_run_ends():
+    # Without the guard: the plan points through the door, the motion memory refuses the move
+    # that failed there (a rescan forgave its collision mark), the refusal turns away, the plan
+    # turns back: to and fro on the spot until the budget is spent.
+    world = _kerb_world()
+    steps = run_decisions(oracle_agent(world), world, max_steps=300)
+    assert len(steps) == 300 and steps[-1][0].action != Action.STOP
+    assert _longest_to_and_fro(steps) >= 20
+    # With it: after 8 turns to and fro the failed moves go back on the map and the frontier is
+    # given up, each time spending a rescan; the agent then ends exhausted (the room is out of reach)
+    world = _kerb_world()
+    steps = run_decisions(oracle_agent(world, oscillation_turns=8), world, max_steps=400)
+    broken = [d for d, _ in steps if d.reason.startswith("turn-in-place livelock broken")]
+    assert 1 <= len(broken) <= 3  # at most one per rescan
+    assert steps[-1][0].mode == Mode.EXHAUSTED and len(steps) < 300
+    assert _longest_to_and_fro(steps) < 2 * 8 + 2

@@ -61,3 +61,46 @@ def test_main_writes_the_spliced_records_and_refuses_an_incomplete_rerun(tmp_pat
     assert [r["success"] for r in lines] == [True, True]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["episodes"] == 2 and summary["sr"] == 1.0 and summary["spliced_from"]["rerun"] == rerun
+
+
+R = "TURN_RIGHT"
+
+
+def test_the_turn_in_place_guard_is_spliced_from_the_first_run_of_alternating_turns():
+    from sim.evaluation.splice import ActsAt, first_oscillation
+
+    acts_at = ActsAt(oscillation=4)
+    looping = rec("e0", [F, L, R, L, L, R, L, R, L, R, L, R], "explore")  # the run of 4 ends at index 7
+    assert first_oscillation(looping["trajectory"]["actions"], 4) == 7
+    assert first_oscillation([2, 3, 2, 3], 4) == 3 and first_oscillation([2, 3, 1, 2, 3], 4) is None  # ints too
+    base = [looping, BASE[1]]
+    assert missing_reruns(base, [], acts_at) == ["e0"]  # e1 never turned to and fro: untouched
+    fixed = rec("e0", [F, L, R, L, L, R, L, R, F, F, S], "stopped", success=True)  # differs from step 8 on
+    out = splice(base, [fixed], acts_at)
+    assert out[0] is fixed and out[1] is BASE[1]
+    early = rec("e0", [F, L, R, L, L, R, L, F, F, S], "stopped", success=True)  # differs at step 7
+    with pytest.raises(ValueError, match="actions differ at step 7"):
+        splice(base, [early], acts_at)
+    with pytest.raises(ValueError, match="never turned to and fro 4 times"):
+        splice(base, [rec("e1", [F, F, F, S], "stopped", home=2)], acts_at)
+
+
+def test_the_splice_and_the_agent_count_the_same_run():
+    import random
+
+    from agent.modes import MotionState
+    from agent.motion import after_action
+    from agent.types import Action
+    from sim.evaluation.splice import first_oscillation
+
+    rng = random.Random(3)
+    for _ in range(200):
+        actions = [rng.choice([Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.MOVE_FORWARD])
+                   for _ in range(30)]
+        m, fired = MotionState(), None
+        for k, a in enumerate(actions):  # the guard acts before action k + 1 when the run reached 5
+            m = after_action(m, a)
+            if m.alternating_turns >= 5:
+                fired = k
+                break
+        assert first_oscillation([int(a) for a in actions], 5) == fired
