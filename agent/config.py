@@ -70,9 +70,10 @@ class PolicyConfig:
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     # The turn-in-place livelock: the plan points at a forward move that already failed from
     # here (refused by the motion memory), the refusal turns away, the plan turns back, for
-    # ever (a rescan forgave the collision mark the memory still holds). After this many
-    # alternating turns in a row the blocked moves from here go back on the map, the frontier
-    # target is given up and one rescan's forgiving is spent (0: off).
+    # ever: the frontier's no-progress count never runs out, because each rescan in between
+    # (which forgives collision marks and given-up frontiers) starts it again. After this many
+    # alternating turns in a row the frontier is given up, as after no progress, and one
+    # rescan's forgiving is spent, so that the loop cannot come back for ever (0: off).
     oscillation_turns: int = 0
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
 

@@ -73,13 +73,3 @@ def after_action(motion: MotionState, action: Action) -> MotionState:
     else:
         n = 1
     return replace(motion, alternating_turns=n, last_action=action)
-
-
-def remark_blocked_moves(grid: GridMap, motion: MotionState, pose: Pose2D) -> int:
-    """Put a collision mark back on the map for every forward move from this cell that failed
-    (a rescan may have forgiven the marks the motion memory still holds); how many."""
-    i, j, _ = move_key(grid, pose)
-    headings = [h for h in range(N_HEADINGS) if (i, j, h) in motion.blocked]
-    for h in headings:
-        grid.mark_collision(Pose2D(pose.x_m, pose.y_m, h * math.radians(TURN_ANGLE_DEG)))
-    return len(headings)

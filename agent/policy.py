@@ -51,7 +51,7 @@ from agent.config import AgentConfig
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
-from agent.motion import after_action, blocked_here, move_key, remark_blocked_moves, safe_action
+from agent.motion import after_action, blocked_here, move_key, safe_action
 from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
@@ -197,7 +197,7 @@ class ModIINAgent:
         self._rejected_now = False
         broke = 0 < pc.oscillation_turns <= self._state.motion.alternating_turns
         if broke:
-            self._break_oscillation(obs)
+            self._break_oscillation()
         decision = self._decide(obs, candidates)
         if broke:
             decision = replace(decision, reason=f"turn-in-place livelock broken; {decision.reason}")
@@ -245,15 +245,14 @@ class ModIINAgent:
     def _set(self, **changes) -> None:
         self._state = replace(self._state, **changes)
 
-    def _break_oscillation(self, obs: Observation) -> None:
-        """Turned to and fro ``oscillation_turns`` times (config.py says why): re-mark the failed
-        moves from here, give up the frontier, spend one rescan's forgiving."""
-        n = remark_blocked_moves(self.grid, self._state.motion, obs.pose)
+    def _break_oscillation(self) -> None:
+        """Turned to and fro ``oscillation_turns`` times (config.py says why): give up the frontier
+        (as after no progress) and spend one rescan's forgiving."""
         if self._state.mode == Mode.EXPLORE:
-            self.explorer.blacklist_target(self.grid, "oscillating")
+            self.explorer.blacklist_target(self.grid, "to and fro")
         r = self._state.rescan
         self._set(motion=replace(self._state.motion, alternating_turns=0), rescan=replace(r, rescans_left=max(0, r.rescans_left - 1)))
-        log.info("turned to and fro on the spot: %d blocked moves re-marked, frontier given up", n)
+        log.info("turned to and fro on the spot: frontier given up, %d rescans left", self._state.rescan.rescans_left)
 
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
         action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion)

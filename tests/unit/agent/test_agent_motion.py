@@ -42,20 +42,3 @@ def test_the_run_of_alternating_turns_counts_to_and_fro_only():
         runs.append(m.alternating_turns)
     # a turn the same way starts a new run; a forward move ends it
     assert runs == [1, 2, 3, 1, 2, 0, 1]
-
-
-def test_blocked_moves_go_back_on_the_map():
-    from agent.motion import remark_blocked_moves
-
-    grid = GridMap()
-    pose = Pose2D(0.0, 0.0, 0.0)
-    east = move_key(grid, pose)
-    north = move_key(grid, Pose2D(0.0, 0.0, math.pi / 2))
-    elsewhere = move_key(grid, Pose2D(1.0, 0.0, 0.0))
-    motion = MotionState(blocked=frozenset({east, north, elsewhere}))
-    assert remark_blocked_moves(grid, motion, pose) == 2  # the two failed here, not the one a metre on
-    marked = np.argwhere(grid.layers.collision)
-    xy = grid.ij_to_xy(marked)
-    assert len(marked) and np.all(np.hypot(xy[:, 0], xy[:, 1]) < 0.5)
-    assert (xy[:, 0] > 0.1).any() and (xy[:, 1] > 0.1).any()  # ahead to the east and to the north
-    assert not ((xy[:, 0] < 0.1) & (xy[:, 1] < 0.1)).any()  # bands across the front: nothing south-west
