@@ -225,6 +225,7 @@ class ModIINAgent:
             reid_tau=self.tau,
             reid_full_matcher=result.full_matcher if result is not None else None,
             reid_gate_score=result.gate_score if result is not None else None,
+            reid_exit_score=result.exit_score if result is not None else None,
             goal_detected=detected,
             matches_goal_xy=result.goal_xy.astype(np.float32) if result is not None else _EMPTY2,
             matches_obs_xy=result.obs_xy.astype(np.float32) if result is not None else _EMPTY2,

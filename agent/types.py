@@ -276,6 +276,9 @@ class AgentRecord:
         gate skipped the full matcher).
     reid_full_matcher: whether the full (learned) matcher ran on this frame (None: no re-ID).
     reid_gate_score: the cheap first-stage score that decided it (None: gate off or no re-ID).
+    reid_exit_score: the gate's second stage, LighterGlue's score after its exit layer (None: not
+        computed: the first stage stopped the frame, the stage is off, or the frame got every layer
+        without it, as near a candidate).
     matches_goal_xy / matches_obs_xy: (N, 2) float32 pixel coordinates (x, y) of the
         matched keypoints in the goal image and the egocentric image.
     goal_points_xyz: (M, 3) float32 goal points in the start-relative frame, metres.
@@ -294,6 +297,7 @@ class AgentRecord:
     reid_tau: float | None = None
     reid_full_matcher: bool | None = None
     reid_gate_score: float | None = None
+    reid_exit_score: float | None = None
     goal_detected: bool = False
     matches_goal_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     matches_obs_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))

@@ -5,8 +5,9 @@
 Runs the default agent (agent/configs/sim.yaml: XFeat + LighterGlue, re-ID gate, early stop as
 configured) through the real simulator on the first ``--count`` episodes of a val episode set (a small one is
 generated into a temporary directory when none is given) for at most ``--steps`` steps each.
-Shadow agents, identical but without LighterGlue's early stop ("all layers") and without the gate
-either ("no gate, all layers": the agent before issue 9), act on the very same observations right
+Shadow agents, identical but without LighterGlue's early stop ("all layers"), without the gate's exit
+stage ("no exit stage") and without the gate ("no gate, all layers": the agent before issue 9), act on
+the very same observations right
 after it (their actions are discarded), so all are measured back to back on the same frames.
 Prints, for each, the median milliseconds per step of the whole ``act`` (total) and its parts:
 mapping, reid (feature extraction, gate, full matching), localisation and planning, the ratios
@@ -59,6 +60,8 @@ def main() -> int:
     variants = {"default": cfg}
     if cfg.reid.early_stop != -1.0:
         variants["all layers"] = replace(cfg, reid=replace(cfg.reid, early_stop=-1.0))
+    if cfg.reid.gate and cfg.reid.gate_exit_layer:
+        variants["no exit stage"] = replace(cfg, reid=replace(cfg.reid, gate_exit_layer=0))
     if cfg.reid.gate:
         variants["no gate, all layers"] = replace(cfg, reid=replace(cfg.reid, gate=False, early_stop=-1.0))
     shadows = {name: ModIINAgent(c) for name, c in variants.items() if name != "default"}

@@ -63,10 +63,9 @@ _matchers_lock = threading.Lock()
 
 def shared_matcher(reid_config: Any) -> Any:
     """The process-wide matcher for a re-ID config (built on first use)."""
-    from agent.reid.identifier import make_matcher
+    from agent.reid.identifier import make_matcher, matcher_key
 
-    key = (reid_config.matcher, reid_config.max_side_px, reid_config.min_confidence, reid_config.sift_ratio,
-           reid_config.early_stop)  # the early stop changes scores: a matcher of its own
+    key = matcher_key(reid_config)  # the early stop changes scores, the exit stage adds a hook: matchers of their own
     with _matchers_lock:
         if key not in _matchers:
             _matchers[key] = make_matcher(reid_config)

@@ -490,6 +490,7 @@ def _step_row(rec: StepRecord) -> StepRow:
         timings={"step_ms": rec.step_ms, **({} if r is None else {k: float(v) for k, v in r.timings_ms.items()})},
         reid_full_matcher=None if r is None or r.reid_full_matcher is None else bool(r.reid_full_matcher),
         reid_gate_score=None if r is None or r.reid_gate_score is None else float(r.reid_gate_score),
+        reid_exit_score=None if r is None or r.reid_exit_score is None else float(r.reid_exit_score),
     )
 
 

@@ -78,6 +78,7 @@ CREATE TABLE IF NOT EXISTS steps (
     timings_json    TEXT NOT NULL,
     reid_full_matcher INTEGER,
     reid_gate_score REAL,
+    reid_exit_score REAL,
     PRIMARY KEY (run_id, step)
 );
 CREATE TABLE IF NOT EXISTS replay_steps (
@@ -128,6 +129,7 @@ class StepRow:
     timings: Mapping[str, float]
     reid_full_matcher: bool | None = None  # the full re-ID matcher ran (False: the gate skipped it)
     reid_gate_score: float | None = None  # the gate's cheap score (None: gate off)
+    reid_exit_score: float | None = None  # the gate's second stage: LighterGlue's score after its exit layer
 
 
 class RunStore:
@@ -144,9 +146,9 @@ class RunStore:
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
-            # files from before the re-ID gate (schema 2) gain its two step columns
+            # files from before the re-ID gate (schema 2) gain its step columns
             have = {r["name"] for r in self._db.execute("PRAGMA table_info(steps)").fetchall()}
-            for col, kind in (("reid_full_matcher", "INTEGER"), ("reid_gate_score", "REAL")):
+            for col, kind in (("reid_full_matcher", "INTEGER"), ("reid_gate_score", "REAL"), ("reid_exit_score", "REAL")):
                 if col not in have:
                     self._db.execute(f"ALTER TABLE steps ADD COLUMN {col} {kind}")
             self._db.execute(
@@ -258,8 +260,8 @@ class RunStore:
             self._db.execute(
                 "INSERT OR REPLACE INTO steps (run_id, step, t_s, action, x_m, y_m, yaw_rad, mode, reason, "
                 "reid_score, reid_tau, goal_detected, n_goal_points, target_x_m, target_y_m, target_kind, "
-                "planner_error, timings_json, reid_full_matcher, reid_gate_score) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
+                "planner_error, timings_json, reid_full_matcher, reid_gate_score, reid_exit_score) "
+                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
                 (
                     run_id,
                     row.step,
@@ -281,6 +283,7 @@ class RunStore:
                     _dump(dict(row.timings)),
                     None if row.reid_full_matcher is None else int(row.reid_full_matcher),
                     row.reid_gate_score,
+                    row.reid_exit_score,
                 ),
             )
             self._db.execute("UPDATE runs SET n_steps=? WHERE id=?", (row.step + 1, run_id))
@@ -367,6 +370,7 @@ class RunStore:
                 timings=json.loads(r["timings_json"]),
                 reid_full_matcher=None if r["reid_full_matcher"] is None else bool(r["reid_full_matcher"]),
                 reid_gate_score=r["reid_gate_score"],
+                reid_exit_score=r["reid_exit_score"],
             )
             for r in rows
         ]

@@ -182,8 +182,11 @@ def step_words(step: Mapping[str, Any]) -> str:
     if action:
         parts.append(action_words(action))
     score, tau = step.get("reid_score"), step.get("reid_tau")
-    gate = step.get("reid_gate_score")
-    if step.get("reid_full_matcher") is False and isinstance(gate, (int, float)):
+    gate, exit_score = step.get("reid_gate_score"), step.get("reid_exit_score")
+    if step.get("reid_full_matcher") is False and isinstance(exit_score, (int, float)):
+        # the matcher's first layers already matched too little of the goal photo to go on
+        parts.append(f"goal not in view (early match {exit_score:.1f})")
+    elif step.get("reid_full_matcher") is False and isinstance(gate, (int, float)):
         # the cheap first stage saw too little in common with the goal photo to run the matcher
         parts.append(f"goal not in view (quick check {gate:.0f})")
     elif isinstance(score, (int, float)):

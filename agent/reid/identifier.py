@@ -49,6 +49,13 @@ class ReIDConfig:
     gate_min_cosine: float = 0.82
     # explicit threshold, else ``gate_threshold`` of the calibration file (``imgnav calibrate --gate``)
     gate_threshold: float | None = None
+    # The gate's second stage (xfeat_lighterglue): a frame past the first stage is scored by
+    # LighterGlue's assignment head after this layer (1-based; 0: off) and stops there, scoring
+    # 0, when that score is below the exit threshold; frames that go on get the full matcher's
+    # score unchanged. On wherever the gate is on and the calibration file has the threshold.
+    gate_exit_layer: int = 2
+    # explicit threshold, else ``gate_exit_threshold`` of the calibration file
+    gate_exit_threshold: float | None = None
 
 
 def calibration_path(matcher: str, kind: str, early_stop: float = -1.0) -> Path:
@@ -113,6 +120,41 @@ def resolve_gate_threshold(config: ReIDConfig) -> float | None:
     return float(data["gate_threshold"])
 
 
+def resolve_exit_threshold(config: ReIDConfig) -> float | None:
+    """The exit stage's threshold in force (None: off), from the config or the calibration file.
+
+    Like the first stage's, it holds only for the tau it was calibrated for (or a higher one), at
+    the layer it was calibrated at; otherwise the stage is off (with a warning), never wrong."""
+    if not config.gate or config.gate_exit_layer <= 0:
+        return None
+    if config.matcher != "xfeat_lighterglue":
+        raise ValueError(f"reid.gate_exit_layer is implemented for xfeat_lighterglue only, not {config.matcher} "
+                         "(set it to 0)")
+    if config.gate_exit_threshold is not None:
+        return float(config.gate_exit_threshold)
+    path, data = _calibration(config)
+    if "gate_exit_threshold" not in data:
+        log.warning("reid.gate is on but %s has no gate_exit_threshold (run `imgnav calibrate --gate`): the gate's "
+                    "exit stage is off", path)
+        return None
+    if int(data.get("gate_exit_layer", -1)) != config.gate_exit_layer:
+        log.warning("%s: the exit stage was calibrated after layer %s, the config asks for %d: the exit stage is off",
+                    path, data.get("gate_exit_layer"), config.gate_exit_layer)
+        return None
+    if config.tau is not None and float(config.tau) < float(data["tau"]):
+        log.warning("reid.tau %.4g is below the tau %.4g the exit threshold in %s was calibrated for: the exit "
+                    "stage is off", config.tau, float(data["tau"]), path)
+        return None
+    return float(data["gate_exit_threshold"])
+
+
+def matcher_key(config: ReIDConfig) -> tuple:
+    """What makes two configs' matchers interchangeable (a cache of matchers is keyed by it):
+    everything ``make_matcher`` builds from, the early stop and the exit layer included."""
+    exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
+    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, config.early_stop, exit_layer)
+
+
 def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher != "sift":
         import torch
@@ -121,7 +163,8 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
-        return XFeatLighterGlue(config.max_side_px, config.min_confidence, early_stop=config.early_stop)
+        return XFeatLighterGlue(config.max_side_px, config.min_confidence, early_stop=config.early_stop,
+                                exit_layer=config.gate_exit_layer if (config.gate or config.gate_shadow) else 0)
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
 
@@ -151,6 +194,9 @@ class ReIDResult:
     full_matcher: bool = True  # False: the gate scored the frame 0 without the full matcher
     gate_score: float | None = None  # the gate's cheap score (None: gate off)
     gate_ms: float = 0.0
+    # the exit stage's score (LighterGlue's head after the exit layer; None: not computed, the
+    # first stage already stopped the frame or the stage is off)
+    exit_score: float | None = None
 
 
 class ReIdentifier:
@@ -174,6 +220,18 @@ class ReIdentifier:
         base = resolve_gate_threshold(config)
         self.gate_threshold = None if base is None else base * min_score_ratio
         self._gate = MNNGate(config.gate_min_cosine) if (config.gate or config.gate_shadow) else None
+        # the second stage, scaled like the first (its bound is linear in the score as well)
+        exit_base = resolve_exit_threshold(config)
+        if exit_base is not None and not hasattr(self.matcher, "exit_layer"):
+            log.info("the injected matcher %s has no exit layer: the gate's exit stage is off", self.matcher.name)
+            exit_base = None
+        if exit_base is not None and self.matcher.exit_layer != config.gate_exit_layer:  # type: ignore[attr-defined]
+            raise ValueError(f"the re-ID gate's exit stage is calibrated after layer {config.gate_exit_layer}, the "
+                             f"matcher exits after layer {self.matcher.exit_layer} (agent.reid.identifier.make_matcher)")  # type: ignore[attr-defined]
+        self.exit_threshold = None if exit_base is None else exit_base * min_score_ratio
+        if config.gate_shadow and getattr(self.matcher, "exit_layer", 0):
+            # shadow recordings (gate off) report the exit stage's score of every frame too
+            self.matcher.always_score_exit = True  # type: ignore[attr-defined]
 
     def set_goal(self, goal_rgb: np.ndarray) -> Features:
         self.goal = self.matcher.extract(goal_rgb, self.config.goal_max_keypoints)
@@ -186,9 +244,11 @@ class ReIdentifier:
         return self.matcher.extract(rgb, self.config.obs_max_keypoints)
 
     def compare(self, obs_rgb: np.ndarray, use_gate: bool = True) -> ReIDResult:
-        """Score a frame against the goal. ``use_gate=False`` runs the full matcher whatever the
-        gate says (the caller knows the frame matters: the agent near a candidate); the gate
-        score is still reported."""
+        """Score a frame against the goal: extract; the gate's first stage (MNN count) and, past
+        it, LighterGlue, stopped after its exit layer when the exit stage's score is below its
+        threshold (the frame scores 0 either way). ``use_gate=False`` runs the full matcher
+        whatever the gate says (the caller knows the frame matters: the agent near a candidate);
+        the first stage's score is still reported."""
         if self.goal is None:
             raise RuntimeError("set_goal() first")
         t0 = time.perf_counter()
@@ -199,8 +259,18 @@ class ReIdentifier:
         if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
             return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, 0.0,
                               full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3)
-        m = self.matcher.match(self.goal, obs)
+        exit_on = use_gate and self.exit_threshold is not None
+        if exit_on:
+            m = self.matcher.match(self.goal, obs, exit_below=(self.config.score, self.exit_threshold))  # type: ignore[call-arg]
+        else:
+            m = self.matcher.match(self.goal, obs)
         t2 = time.perf_counter()
+        exit_scores = getattr(self.matcher, "exit_scores", None)
+        exit_score = None if exit_scores is None else float(exit_scores[self.config.score])
+        if exit_on and self.matcher.exited:  # type: ignore[attr-defined]
+            return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, (t2 - t_gate) * 1e3,
+                              full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3,
+                              exit_score=exit_score)
         return ReIDResult(
             score=score(m, self.config.score),
             matches=m,
@@ -211,4 +281,5 @@ class ReIdentifier:
             full_matcher=True,
             gate_score=gate_score,
             gate_ms=(t_gate - t1) * 1e3,
+            exit_score=exit_score,
         )

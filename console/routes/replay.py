@@ -52,6 +52,7 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
                 "reid_tau": s["reid_tau"],
                 "reid_full_matcher": s.get("reid_full_matcher"),
                 "reid_gate_score": s.get("reid_gate_score"),
+                "reid_exit_score": s.get("reid_exit_score"),
                 "goal_detected": s["goal_detected"],
                 "pose": [s["x_m"], s["y_m"], s["yaw_rad"]],
                 "n_candidates": len([c for c in cands if c.get("state") != "rejected"]),

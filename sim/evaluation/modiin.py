@@ -117,13 +117,13 @@ def worker_init(args: argparse.Namespace) -> None:
 
 def make_agent(args: argparse.Namespace, oracle: Any):
     from agent.policy import ModIINAgent
-    from agent.reid.identifier import make_matcher
+    from agent.reid.identifier import make_matcher, matcher_key
 
     cfg = build_config(args)
     needs_matcher = cfg.policy.reid_source == "matcher" or cfg.policy.localisation_source == "goal_mask"
     matcher = None
     if needs_matcher:
-        key = (cfg.reid.matcher, cfg.reid.max_side_px, cfg.reid.min_confidence, cfg.reid.sift_ratio)
+        key = matcher_key(cfg.reid)
         if key not in _MATCHERS:
             _MATCHERS[key] = make_matcher(cfg.reid)
         matcher = _MATCHERS[key]
@@ -211,6 +211,7 @@ class Attribution:
         self.trace_score: list[float | None] = []  # per step: re-ID score and goal pixels in view,
         self.trace_goal_px: list[int] = []  # kept for threshold analysis on train episodes
         self.trace_gate: list[float | None] = []  # the re-ID gate's cheap score (None: not computed)
+        self.trace_exit: list[float | None] = []  # the gate's exit-stage score (None: not computed)
         self.trace_goal_dist: list[float] = []  # robot centre to the goal's footprint, metres (distance-aware evidence)
         self.full_matcher_steps = 0  # steps on which the full matcher ran
         self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
@@ -227,6 +228,7 @@ class Attribution:
         self.trace_score.append(None if record.reid_score is None else round(float(record.reid_score), 2))
         self.trace_goal_px.append(px)
         self.trace_gate.append(None if record.reid_gate_score is None else round(float(record.reid_gate_score), 1))
+        self.trace_exit.append(None if record.reid_exit_score is None else round(float(record.reid_exit_score), 2))
         self.trace_goal_dist.append(round(self._robot_to_goal_m(), 2))
         self.full_matcher_steps += bool(record.reid_full_matcher)
         self.gated_goal_in_view += bool(seen and record.reid_full_matcher is False)
@@ -314,6 +316,7 @@ class Attribution:
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,
                 "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate,
+                          "exit_score": self.trace_exit,
                           "goal_dist_m": self.trace_goal_dist},
             },
         }

@@ -49,7 +49,9 @@ class ChunkResult:
 
 
 def _matcher_key(cfg: Any) -> tuple:
-    return (cfg.matcher, cfg.max_side_px, cfg.min_confidence, cfg.sift_ratio, cfg.goal_max_keypoints)
+    from agent.reid.identifier import matcher_key
+
+    return matcher_key(cfg) + (cfg.goal_max_keypoints,)  # features are cached per key too
 
 
 def score_chunk(reid_cfg: Any, image_keys: list[str], image_refs: list[Any], pairs: np.ndarray) -> ChunkResult:

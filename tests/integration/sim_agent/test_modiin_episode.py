@@ -81,3 +81,41 @@ def test_eval_plugin_runs_an_episode(episode, tmp_path):
                               modiin_seen_px=2300, modiin_threads=1, workers=1)
     summary = run_evaluation(es.directory, "modiin", args, tmp_path, limit=1, progress=False, fail_fast=True)
     assert summary["episodes"] == 1 and "failure_causes" in summary and "table_md" in summary
+
+
+def test_recorded_gate_frames_rescore_like_the_agent_scored_them(episode, tmp_path):
+    """`python -m sim.evaluation.gate_frames` keeps each frame's features, so the gate can be
+    calibrated for other matcher settings without new episodes: re-scored from the file, every
+    frame gets the score the agent gave it (float16 descriptors move it a little) and the gate
+    score the agent's gate would give it."""
+    from dataclasses import replace
+
+    import torch
+
+    from agent.config import load_agent_config
+    from agent.reid.gate import MNNGate
+    from agent.reid.identifier import make_matcher
+    from sim.evaluation.gate_calibration import frames_from_recordings
+    from sim.evaluation.gate_frames import record_episode
+
+    es, ep, world = episode
+    cfg = load_agent_config("sim")
+    cfg = replace(cfg, reid=replace(cfg.reid, gate=False, num_threads=1))
+    summary = record_episode(world, es, ep, cfg, 6, tmp_path / f"{ep.episode_id}.npz")
+    z = dict(np.load(tmp_path / f"{ep.episode_id}.npz"))
+    n = summary["frames"]
+    assert 1 <= n <= 6 and z["full"].shape == z["searching"].shape == z["n_kp"].shape == (n,)
+    assert z["kp"].shape[:2] == z["desc"].shape[:2] == (n, int(z["n_kp"].max())) and z["desc"].dtype == np.float16
+    assert z["searching"][0]  # the first step looks around
+    matcher = make_matcher(cfg.reid)
+    full, gate, episodes = frames_from_recordings([str(tmp_path)], matcher, cfg.reid.gate_min_cosine)
+    assert episodes == 1 and len(full) == n
+    assert np.allclose(full, z["full"], rtol=0.03, atol=1.0), (full, z["full"])
+    g = MNNGate(cfg.reid.gate_min_cosine)
+    g.set_goal(torch.from_numpy(z["goal_desc"].astype(np.float32)))
+    expect = [g.score(torch.from_numpy(z["desc"][i, : z["n_kp"][i]].astype(np.float32))) for i in range(n)]
+    assert gate.tolist() == expect
+    # a val recording is refused
+    (tmp_path / f"{ep.episode_id}.npz").rename(tmp_path / "val-s0-0000-0.npz")
+    with pytest.raises(ValueError, match="train only"):
+        frames_from_recordings([str(tmp_path)], matcher, cfg.reid.gate_min_cosine)

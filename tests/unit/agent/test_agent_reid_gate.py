@@ -2,6 +2,7 @@
 sets, its threshold calibration, and the identifier skipping the full matcher below it."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -174,3 +175,69 @@ def test_both_deployments_gate_by_default_and_the_packaged_calibration_has_a_thr
         cfg = load_agent_config(name).reid
         assert cfg.gate is True
         assert resolve_gate_threshold(cfg) > 0
+
+
+def _views():
+    import cv2
+    import skimage.data
+
+    goal = cv2.resize(skimage.data.astronaut(), (512, 512))
+    same = cv2.resize(cv2.warpAffine(goal, cv2.getRotationMatrix2D((256, 256), 10, 0.8), (512, 512))[60:460, 100:330],
+                      (360, 640))
+    other = cv2.resize(skimage.data.coffee(), (360, 640))
+    return goal, same, other
+
+
+def test_exit_stage_stops_an_unrelated_frame_and_leaves_a_matching_one_untouched():
+    """The gate's second stage: LighterGlue's head after layer 2 scores the frame; below the exit
+    threshold the frame stops there (score 0, full matcher False, its exit score recorded); above
+    it, the frame gets exactly the score it gets without the stage."""
+    from agent.reid.identifier import make_matcher
+
+    goal, same, other = _views()
+    cfg = ReIDConfig(tau=5.0, gate=True, gate_threshold=0.0, gate_exit_threshold=5.0, num_threads=1)
+    matcher = make_matcher(cfg)
+    assert matcher.exit_layer == 2
+    gated = ReIdentifier(cfg, matcher=matcher)
+    plain = ReIdentifier(ReIDConfig(tau=5.0, num_threads=1), matcher=make_matcher(ReIDConfig(num_threads=1)))
+    for r in (gated, plain):
+        r.set_goal(goal)
+    assert gated.exit_threshold == 5.0 and plain.exit_threshold is None
+    o = gated.compare(other)
+    assert not o.full_matcher and o.score == 0.0 and len(o.matches) == 0 and o.exit_score < 5.0
+    assert matcher.layers_run == 2
+    s, s_plain = gated.compare(same), plain.compare(same)
+    assert s.full_matcher and s.exit_score >= 5.0 and matcher.layers_run == 6
+    assert s.score == s_plain.score > 100 and np.array_equal(s.matches.idx_obs, s_plain.matches.idx_obs)
+    # near a candidate (use_gate=False) neither stage acts: every layer, no exit score
+    forced = gated.compare(other, use_gate=False)
+    assert forced.full_matcher and forced.exit_score is None and forced.score == plain.compare(other).score
+    # scaled for potential evidence like the first stage
+    half = ReIdentifier(cfg, matcher=matcher, min_score_ratio=0.5)
+    assert half.exit_threshold == 2.5
+    # an injected matcher without layers has no exit stage; one with another exit layer is an error
+    assert ReIdentifier(cfg, matcher=VectorMatcher({})).exit_threshold is None
+    with pytest.raises(ValueError, match="layer"):
+        ReIdentifier(replace(cfg, gate_exit_layer=3), matcher=matcher)
+
+
+def test_exit_threshold_from_config_or_calibration_file(tmp_path):
+    from agent.reid.identifier import matcher_key, resolve_exit_threshold
+
+    assert resolve_exit_threshold(ReIDConfig(gate=False, gate_exit_threshold=3.0)) is None
+    assert resolve_exit_threshold(ReIDConfig(gate=True, gate_exit_layer=0)) is None
+    assert resolve_exit_threshold(ReIDConfig(gate=True, gate_exit_threshold=3.0)) == 3.0
+    with pytest.raises(ValueError, match="xfeat_lighterglue only"):
+        resolve_exit_threshold(ReIDConfig(matcher="sift", gate=True))
+    f = tmp_path / "cal.json"
+    base = {"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0, "gate_threshold": 21.0, "gate_min_cosine": 0.82}
+    f.write_text(json.dumps(base))  # calibrated before the exit stage: off
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) is None
+    f.write_text(json.dumps({**base, "gate_exit_layer": 2, "gate_exit_threshold": 6.5}))
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 6.5
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_layer=3)) is None
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=60.0)) is None
+    # matchers are shared per key: the exit layer (a hook) and the early stop make matchers of their own
+    assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=False))
+    assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=True, gate_exit_layer=3))
+    assert matcher_key(ReIDConfig(early_stop=0.9)) != matcher_key(ReIDConfig())

@@ -73,10 +73,14 @@ def test_steps_keep_the_re_id_gate_and_older_files_gain_its_columns(tmp_path: Pa
     store = RunStore(db)
     store.create_run("b" * 12, backend="sim", options={}, goal={}, target=None, created_s=1.0)
     store.add_step("b" * 12, replace(_step(0, score=0.0), reid_full_matcher=False, reid_gate_score=12.0))
-    store.add_step("b" * 12, replace(_step(1, score=80.5), reid_full_matcher=True, reid_gate_score=140.0))
+    store.add_step("b" * 12, replace(_step(1, score=80.5), reid_full_matcher=True, reid_gate_score=140.0,
+                                     reid_exit_score=41.5))
     store.add_step("b" * 12, _step(2))  # gate off: neither is known
+    store.add_step("b" * 12, replace(_step(3, score=0.0), reid_full_matcher=False, reid_gate_score=30.0,
+                                     reid_exit_score=0.75))  # stopped by the exit stage
     got = store.steps("b" * 12)
-    assert [(s.reid_full_matcher, s.reid_gate_score) for s in got] == [(False, 12.0), (True, 140.0), (None, None)]
+    assert [(s.reid_full_matcher, s.reid_gate_score, s.reid_exit_score) for s in got] == [
+        (False, 12.0, None), (True, 140.0, 41.5), (None, None, None), (False, 30.0, 0.75)]
     # a data directory from before the gate: its steps table lacks the columns; opening adds them
     old = tmp_path / "old.sqlite3"
     con = sqlite3.connect(old)
@@ -91,4 +95,4 @@ def test_steps_keep_the_re_id_gate_and_older_files_gain_its_columns(tmp_path: Pa
     con.commit()
     con.close()
     reopened = RunStore(old)
-    assert [(s.reid_score, s.reid_full_matcher) for s in reopened.steps("c" * 12)] == [(3.0, None)]
+    assert [(s.reid_score, s.reid_full_matcher, s.reid_exit_score) for s in reopened.steps("c" * 12)] == [(3.0, None, None)]

@@ -48,6 +48,9 @@ def test_steps_and_timings() -> None:
     gated = step_words({"step": 3, "mode": "explore", "action_name": "MOVE_FORWARD", "reid_score": 0.0,
                         "reid_tau": 75.3, "reid_full_matcher": False, "reid_gate_score": 12.0})
     assert gated == "Step 4: exploring, forward, goal not in view (quick check 12)"
+    exited = step_words({"step": 4, "mode": "explore", "action_name": "TURN_RIGHT", "reid_score": 0.0, "reid_tau": 75.3,
+                         "reid_full_matcher": False, "reid_gate_score": 40.0, "reid_exit_score": 1.234})
+    assert exited == "Step 5: exploring, turn right, goal not in view (early match 1.2)"
     assert distance_driven_m([{"x_m": 0, "y_m": 0}, {"x_m": 3, "y_m": 4}, {"x_m": 3, "y_m": 4}]) == 5.0
     rows = dict(timing_rows({"upload_to_first_action_s": 0.82, "mean_step_ms": 107.2, "total_s": 214}))
     assert rows == {"upload to first move": "0.8 s", "per step (mean)": "107 ms", "total": "3 min 34 s"}

@@ -43,7 +43,7 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
             write_rgb(cache / f"{name}_{k}.png", view)
             entries.append({"path": f"{name}_{k}.png", "instance": name, "category": "tv"})
     cal = tmp_path / "xfeat_lighterglue_{kind}.json"
-    for kind, tau in (("conf", 5.0), ("count", 10.0)):
+    for kind, tau in (("conf", 20.0), ("count", 10.0)):
         Path(str(cal).format(kind=kind)).write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau}))
     monkeypatch.setattr("agent.reid.identifier.calibration_path",
                         lambda matcher, kind, early_stop=-1.0: Path(str(cal).format(kind=kind)))
@@ -57,16 +57,23 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
                               gate_records=[str(records)], gate_max_drop=0.01, no_write_agent=False)
     result = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
     written = json.loads(Path(str(cal).format(kind="conf")).read_text())
-    assert written["tau"] == 5.0 and written["gate_threshold"] == result["threshold"]
+    assert written["tau"] == 20.0 and written["gate_threshold"] == result["threshold"]
     assert set(written["gate_sources"]) == {"goal-image pairs", "train-episode frames"}
     # the recorded frames' bound: the lowest gate/full ratio among frames >= tau/2 (31/20 at full 20), x tau
     frames = written["gate_sources"]["train-episode frames"]
-    assert frames["bound"] == np.floor(31.0 / 20.0 * 5.0) == 7 and frames["positives"] == 3
-    assert frames["direct"] == 10.0  # the lowest positive's gate score (3 positives: no drop allowed)
+    assert frames["bound"] == np.floor(31.0 / 20.0 * 20.0) == 31 and frames["positives"] == 1
+    assert frames["direct"] == 31.0  # the lowest positive's gate score (1 positive: no drop allowed)
     assert result["threshold"] <= frames["bound"] and (out / "xfeat_lighterglue_conf_gate.png").stat().st_size > 0
+    # the exit stage: a threshold on LighterGlue's score after layer 2, from the pairs (the score
+    # records carry no exit scores), that keeps every positive pair here (the 6 same-image pairs:
+    # too few to drop one) and is above 0 (their first two layers already match much of each other)
+    assert written["gate_exit_layer"] == 2 and written["gate_exit_threshold"] == result["exit_threshold"]
+    pairs = written["gate_exit_sources"]["goal-image pairs"]
+    assert set(written["gate_exit_sources"]) == {"goal-image pairs"} and pairs["dropped_share_at_threshold"] == 0.0
+    assert 0 < result["exit_threshold"] <= pairs["direct"] and (out / "xfeat_lighterglue_conf_gate_exit.png").is_file()
     # what the agent then uses
     reid = ReIdentifier(ReIDConfig(gate=True, calibration_file=str(cal).format(kind="conf"), num_threads=1))
-    assert reid.gate_threshold == result["threshold"]
+    assert reid.gate_threshold == result["threshold"] and reid.exit_threshold == result["exit_threshold"]
     # a second run reuses the scored pairs
     again = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
     assert again["threshold"] == result["threshold"]
