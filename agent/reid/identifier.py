@@ -106,46 +106,44 @@ def resolve_gate_threshold(config: ReIDConfig) -> float | None:
     if config.gate_threshold is not None:
         return float(config.gate_threshold)
     path, data = _calibration(config)
-    if "gate_threshold" not in data:
-        log.warning("reid.gate is on but %s has no gate_threshold (run `imgnav calibrate --gate`, or set "
-                    "reid.gate_threshold): the gate is off, every frame gets the full matcher", path)
-        return None
     if abs(float(data.get("gate_min_cosine", config.gate_min_cosine)) - config.gate_min_cosine) > 1e-9:
         raise ValueError(f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
                          f"the config asks for {config.gate_min_cosine}")
-    if config.tau is not None and float(config.tau) < float(data["tau"]):
-        log.warning("reid.tau %.4g is below the tau %.4g the gate threshold in %s was calibrated for: "
-                    "the gate is off", config.tau, float(data["tau"]), path)
-        return None
-    return float(data["gate_threshold"])
+    return _threshold_in_file(config, path, data, "gate_threshold", "the gate is off, every frame gets the full matcher")
 
 
 def resolve_exit_threshold(config: ReIDConfig) -> float | None:
     """The exit stage's threshold in force (None: off), from the config or the calibration file.
 
     Like the first stage's, it holds only for the tau it was calibrated for (or a higher one), at
-    the layer it was calibrated at; otherwise the stage is off (with a warning), never wrong."""
+    the layer it was calibrated at; otherwise the stage is off (with a warning), never wrong. Only
+    LighterGlue has the layers it needs: with another matcher the stage is off."""
     if not config.gate or config.gate_exit_layer <= 0:
         return None
     if config.matcher != "xfeat_lighterglue":
-        raise ValueError(f"reid.gate_exit_layer is implemented for xfeat_lighterglue only, not {config.matcher} "
-                         "(set it to 0)")
+        log.info("reid.gate_exit_layer: %s has no layers to stop after; the gate's exit stage is off", config.matcher)
+        return None
     if config.gate_exit_threshold is not None:
         return float(config.gate_exit_threshold)
     path, data = _calibration(config)
-    if "gate_exit_threshold" not in data:
-        log.warning("reid.gate is on but %s has no gate_exit_threshold (run `imgnav calibrate --gate`): the gate's "
-                    "exit stage is off", path)
-        return None
-    if int(data.get("gate_exit_layer", -1)) != config.gate_exit_layer:
+    if "gate_exit_threshold" in data and int(data.get("gate_exit_layer", -1)) != config.gate_exit_layer:
         log.warning("%s: the exit stage was calibrated after layer %s, the config asks for %d: the exit stage is off",
                     path, data.get("gate_exit_layer"), config.gate_exit_layer)
         return None
-    if config.tau is not None and float(config.tau) < float(data["tau"]):
-        log.warning("reid.tau %.4g is below the tau %.4g the exit threshold in %s was calibrated for: the exit "
-                    "stage is off", config.tau, float(data["tau"]), path)
+    return _threshold_in_file(config, path, data, "gate_exit_threshold", "the gate's exit stage is off")
+
+
+def _threshold_in_file(config: ReIDConfig, path: Path, data: dict, key: str, off: str) -> float | None:
+    """A gate stage's threshold from its calibration file: None (with a warning saying ``off``)
+    when the file has none or the config's explicit tau is below the one it was calibrated for."""
+    if key not in data:
+        log.warning("reid.gate is on but %s has no %s (run `imgnav calibrate --gate`): %s", path, key, off)
         return None
-    return float(data["gate_exit_threshold"])
+    if config.tau is not None and float(config.tau) < float(data["tau"]):
+        log.warning("reid.tau %.4g is below the tau %.4g the %s in %s was calibrated for: %s",
+                    config.tau, float(data["tau"]), key, path, off)
+        return None
+    return float(data[key])
 
 
 def matcher_key(config: ReIDConfig) -> tuple:

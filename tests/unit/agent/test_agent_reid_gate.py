@@ -227,8 +227,7 @@ def test_exit_threshold_from_config_or_calibration_file(tmp_path):
     assert resolve_exit_threshold(ReIDConfig(gate=False, gate_exit_threshold=3.0)) is None
     assert resolve_exit_threshold(ReIDConfig(gate=True, gate_exit_layer=0)) is None
     assert resolve_exit_threshold(ReIDConfig(gate=True, gate_exit_threshold=3.0)) == 3.0
-    with pytest.raises(ValueError, match="xfeat_lighterglue only"):
-        resolve_exit_threshold(ReIDConfig(matcher="sift", gate=True))
+    assert resolve_exit_threshold(ReIDConfig(matcher="sift", gate=True, gate_exit_threshold=3.0)) is None  # no layers
     f = tmp_path / "cal.json"
     base = {"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0, "gate_threshold": 21.0, "gate_min_cosine": 0.82}
     f.write_text(json.dumps(base))  # calibrated before the exit stage: off

@@ -77,3 +77,21 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
     # a second run reuses the scored pairs
     again = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
     assert again["threshold"] == result["threshold"]
+
+
+def test_gate_report_counts_what_each_stage_would_drop(tmp_path: Path) -> None:
+    from sim.evaluation.gate_report import report, shadow_frames
+
+    run = tmp_path / "run"
+    run.mkdir()
+    trace = {"reid_score": [100.0, 80.0, 40.0, 5.0, None], "gate_score": [50.0, 15.0, 30.0, 2.0, 9.0],
+             "exit_score": [20.0, 9.0, 2.0, 0.5, 1.0]}
+    (run / "episodes.jsonl").write_text(json.dumps({"episode_id": "train-s0-0000-0", "modiin": {"trace": trace}}) + "\n")
+    full, gate, exit_, episodes = shadow_frames(str(run))
+    assert full.tolist() == [100.0, 80.0, 40.0, 5.0] and episodes == 1  # the frame without a score is left out
+    lines = report(full, gate, exit_, tau=75.0, gate_thr=20.0, exit_thr=6.0, ratio=0.5)
+    # >= tau: 100 (passes both) and 80 (first stage 15 < 20): one dropped
+    assert "frames >= tau: 2; dropped by the first stage 1, by the exit stage 0, by either 1 (50.0%)" in lines[1]
+    # >= tau/2 with the halved thresholds (10, 3): 40 has exit 2 < 3, 80 passes (15 >= 10, 9 >= 3)
+    assert "frames >= 0.5 tau: 3; dropped by the first stage 0, by the exit stage 1, by either 1 (33.3%)" in lines[2]
+    assert "every layer would run on 50.0% of the frames (first stage alone: 75.0%)" in lines[3]
