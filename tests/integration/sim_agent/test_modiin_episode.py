@@ -108,13 +108,19 @@ def test_recorded_gate_frames_rescore_like_the_agent_scored_them(episode, tmp_pa
     assert z["kp"].shape[:2] == z["desc"].shape[:2] == (n, int(z["n_kp"].max())) and z["desc"].dtype == np.float16
     assert z["searching"][0]  # the first step looks around
     matcher = make_matcher(cfg.reid)
-    full, gate, episodes = frames_from_recordings([str(tmp_path)], matcher, cfg.reid.gate_min_cosine)
-    assert episodes == 1 and len(full) == n
+    full, gate, exit_, episodes = frames_from_recordings([str(tmp_path)], matcher, cfg.reid.gate_min_cosine)
+    assert episodes == 1 and len(full) == len(exit_) == n
+    assert np.all(np.isnan(exit_))  # this matcher has no exit layer (the recorder's config has the gate off)
     assert np.allclose(full, z["full"], rtol=0.03, atol=1.0), (full, z["full"])
     g = MNNGate(cfg.reid.gate_min_cosine)
     g.set_goal(torch.from_numpy(z["goal_desc"].astype(np.float32)))
     expect = [g.score(torch.from_numpy(z["desc"][i, : z["n_kp"][i]].astype(np.float32))) for i in range(n)]
     assert gate.tolist() == expect
+    # with the exit layer, every frame also gets the exit stage's score (and the same full score)
+    exit_matcher = make_matcher(replace(cfg.reid, gate=True))
+    exit_matcher.always_score_exit = True
+    full2, _, exit2, _ = frames_from_recordings([str(tmp_path)], exit_matcher, cfg.reid.gate_min_cosine)
+    assert np.array_equal(full2, full) and np.all(np.isfinite(exit2)) and np.all(exit2 >= 0)
     # a val recording is refused
     (tmp_path / f"{ep.episode_id}.npz").rename(tmp_path / "val-s0-0000-0.npz")
     with pytest.raises(ValueError, match="train only"):
