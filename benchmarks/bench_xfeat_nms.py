@@ -34,7 +34,7 @@ def main() -> int:
 
     torch.set_num_threads(args.threads)
     with SimWorld.from_seed(1000) as world:
-        x, y = world.home.rooms[0].center_xy_m()  # any pose renders; collisions do not matter here
+        x, y = world.home.rooms[0].center_xy_m  # any pose renders; collisions do not matter here
         frames = []
         for k in range(args.frames):
             pose = Pose2D(x, y, k * 2 * 3.14159 / args.frames)
