@@ -51,6 +51,7 @@ class Rec:
         self.reid_score = 100.0 if detected else (1.0 if full_matcher else 0.0)
         self.reid_full_matcher = full_matcher
         self.reid_gate_score = 90.0 if full_matcher else 3.0
+        self.reid_exit_score = None
 
 
 def attribution(steps):
@@ -64,7 +65,7 @@ def attribution(steps):
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
     a.modes, a.timings = Counter(), {}
-    a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_goal_dist = [], [], [], []
+    a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
     obs = type("O", (), {"step": 0})()
     for k, (px, det, pts, *full) in enumerate(steps):
@@ -90,7 +91,8 @@ def test_attribution_classes():
     # recognised with the goal in view but no candidate ever landed on it: localisation
     assert attribution([(5000, True, []), (0, False, [])]).cause(False) == "localisation"
     trace = attribution([(5000, True, ON_GOAL), (0, False, [])]).finish({"success": False})["modiin"]["trace"]
-    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0], "gate_score": [90.0, 90.0], "goal_dist_m": [3.0, 3.0]}
+    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0], "gate_score": [90.0, 90.0],
+                     "exit_score": [None, None], "goal_dist_m": [3.0, 3.0]}
 
 
 def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
