@@ -79,6 +79,7 @@ class XFeatLighterGlue:
             kind, bar = self._exit_below
             if self.exit_scores[kind] < bar:
                 raise _Exit()
+
     @torch.inference_mode()
     def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
         img, scale = resize_max_side(rgb, self.max_side_px)
