@@ -56,6 +56,29 @@ class PolicyConfig:
     # closer than stop_radius_m of the nearest one
     stop_rule: Literal["radius", "core"] = "radius"
     stop_core_quantile: float = 0.7  # core cells: this share of the cells nearest to the points' median
+    # what the quantile counts: "points" = the cells of this share of the candidate's points
+    # nearest to their median (each cell weighs by its evidence); "cells" = this share of its
+    # cells (a few stray points spread over many cells, and the objects' own points pack into a
+    # few: on val a third of a TV's cells held 3% of its points, 0.4-0.9 m in front of it)
+    stop_core_by: Literal["points", "cells"] = "cells"
+    # success needs the object in view from the stop point. At the stop, facing the candidate,
+    # its points that fall in the frame are checked against the depth image: when fewer than
+    # ``stop_view_min_share`` of them (and at least ``stop_view_min_points`` fall in the frame)
+    # are seen, not hidden behind something nearer (a wall between
+    # the robot and an object against its other side), the spot is struck off the candidate's
+    # stop region and the approach goes on; after ``stop_view_max_spots`` such spots it stops
+    # anyway. Points out of the frame (a low object below the level camera) are no evidence
+    stop_needs_view: bool = False
+    stop_view_min_share: float = 0.1  # the simulator calls an object visible from 10% of its sample points
+    stop_view_min_points: int = 10
+    # nearer by more than this (plus the share below of the point's depth) is hidden: an object
+    # against a wall has the wall within 0.1-0.2 m of its points
+    stop_view_margin_m: float = 0.1
+    stop_view_margin_frac: float = 0.05
+    stop_view_own_m: float = 0.05  # a surface in or next to the candidate's cells is the object itself
+    stop_view_occluder_m: float = 0.1  # what hid the candidate blocks lines of sight this far around it
+    stop_view_spot_radius_m: float = 0.3
+    stop_view_max_spots: int = 4
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     # a rejected candidate that never scored tau (potential evidence only) blacklists only the
     # evidence below tau around it: a later detection there still counts

@@ -22,7 +22,12 @@ Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
   and is verified by approach (``agent.candidates``; every candidate, rejected ones
   included, is in the ``AgentRecord``);
 * where to stop (``stop_rule="core"``): measured from the candidate's core cells rather than
-  its nearest (possibly stray) one, and only where the map shows a line of sight to it;
+  its nearest (possibly stray) one, and only where the map shows a line of sight to it; the
+  core weighs each cell by the points in it (``stop_core_by="points"``);
+* the view check at the stop (``stop_needs_view``): facing the candidate, its core points that
+  fall in the frame are looked up in the depth image; when something else hides them all (a
+  wall between the robot and an object against its other side) the spot is struck off, what
+  hid them blocks the candidate's line of sight, and the approach goes on;
 * exploration by information gain (``frontier.gain_weight_m``);
 * the last resort (``last_resort``): when nothing is left to explore, head for the rejected
   candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place.
@@ -54,6 +59,7 @@ from agent.mapping import GridMap
 from agent.motion import after_action, blocked_here, move_key, safe_action
 from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
+from agent.projection import lift_pixels, view_of_points
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
@@ -66,6 +72,30 @@ OracleEgoMask = Callable[[Observation], np.ndarray]
 
 _EMPTY2 = np.zeros((0, 2), np.float32)
 _EMPTY3 = np.zeros((0, 3), np.float32)
+
+
+def core_points(cand: Candidate, quantile: float) -> np.ndarray:
+    """(M, 3) the share ``quantile`` of the candidate's points nearest (in xy) to their median."""
+    pts = cand.points_xyz
+    med = np.median(pts[:, :2], axis=0)
+    d = np.hypot(pts[:, 0] - med[0], pts[:, 1] - med[1])
+    return pts[d <= np.quantile(d, quantile)]
+
+
+def core_cells(grid: GridMap, cand: Candidate, quantile: float, by: str = "points") -> np.ndarray:
+    """(K, 2) in-bounds cells of the candidate's core: those nearest to the median of its points.
+    ``by="points"``: the cells of the share ``quantile`` of its points nearest to the median,
+    so that each cell weighs by the evidence in it; ``by="cells"``: that share of its cells."""
+    if by == "points":
+        keep = np.unique(grid.xy_to_ij(core_points(cand, quantile)[:, :2]), axis=0)
+    elif by == "cells":
+        med = np.median(cand.points_xyz[:, :2], axis=0)
+        xy = grid.ij_to_xy(cand.cells_ij)
+        d = np.hypot(xy[:, 0] - med[0], xy[:, 1] - med[1])
+        keep = cand.cells_ij[d <= np.quantile(d, quantile)]
+    else:
+        raise ValueError(f"core_cells: unknown by={by!r}")
+    return keep[grid.in_bounds(keep)]
 
 
 class ModIINAgent:
@@ -343,14 +373,16 @@ class ModIINAgent:
         pc = self.config.policy
         grid, pose = self.grid, obs.pose
         stop_cells = self._stop_cells(cand)
-        region = region_within(stop_cells, pc.stop_radius_m, grid.resolution_m)
+        hidden = self._hidden_spots_mask(cand)
+        region = region_within(stop_cells, pc.stop_radius_m, grid.resolution_m) & ~hidden
         if pc.stop_rule == "core":
-            region = self._in_sight(region, stop_cells)
+            region = self._in_sight(region, stop_cells, cand.id)
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal and verify).
-        near_enough = (self._state.approach.region_unreachable or blocked_here(self.grid, self._state.motion, pose)) and region_within(
-            stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
+        near_enough = (self._state.approach.region_unreachable or blocked_here(self.grid, self._state.motion, pose)) and (
+            region_within(stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)
+            & ~hidden)[agent_ij]
         if region[agent_ij] or near_enough:
             return self._at_candidate(obs, cand, trusted)
         self._set(verify=None)
@@ -363,7 +395,9 @@ class ModIINAgent:
             except PlanError:
                 # The stop region can be out of reach (a TV on a deep stand, the middle of a
                 # bed): head for the reachable cells nearest to the goal instead.
-                wider = region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
+                wider = region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m) & ~hidden
+                if pc.stop_needs_view and pc.stop_rule == "core":
+                    wider = self._in_sight(wider, stop_cells, cand.id)
                 plan = self.planner.plan(grid, field, pose, wider)
                 a = replace(a, region_unreachable=True)
         except PlanError as exc:
@@ -385,27 +419,82 @@ class ModIINAgent:
         return Decision(self._safe(plan, pose, field), Mode.APPROACH, "navigating to the goal candidate", plan=plan,
                         target_kind="goal", candidate=cand)
 
+    def _hidden_spots_mask(self, cand: Candidate) -> np.ndarray:
+        """(H, W) bool: the cells near the stop spots from which ``cand`` was found hidden."""
+        spots = [(x, y) for c, x, y in self._state.hidden_spots if c == cand.id]
+        mask = np.zeros(self.grid.shape, bool)
+        if not spots:
+            return mask
+        ij = self.grid.xy_to_ij(np.asarray(spots, np.float64))
+        ij = ij[self.grid.in_bounds(ij)]
+        mask[ij[:, 0], ij[:, 1]] = True
+        return region_within(mask, self.config.policy.stop_view_spot_radius_m, self.grid.resolution_m)
+
+    def _core_view(self, obs: Observation, cand: Candidate) -> tuple[int, int, np.ndarray | None]:
+        """How the depth frame sees the candidate's core: (points in the frame with a depth
+        reading, those seen, and None unless it is hidden: then the (M, 2) run-frame xy of what
+        hides it, the frame's points before the unseen ones). Hidden: at least
+        ``stop_view_min_points`` in the frame and fewer than ``stop_view_min_share`` of them
+        seen. Points out of the frame, or where the depth has no reading, are no evidence."""
+        pc = self.config.policy
+        grid = self.grid
+        ok, seen, uv = view_of_points(core_points(cand, pc.stop_core_quantile), obs, pc.stop_view_margin_m,
+                                      pc.stop_view_margin_frac)
+        hid = ok & ~seen
+        occluder = np.zeros((0, 2))
+        if hid.any():
+            # what the frame shows there instead: the object's own near side (seen from another
+            # side than its points were) counts as seen, anything else hides it
+            u, v = uv[hid, 0], uv[hid, 1]
+            xy = lift_pixels(u, v, obs.depth_m[v, u], obs.intrinsics, obs.pose, obs.camera_height_m,
+                             obs.camera_tilt_rad).xyz_run[:, :2].astype(np.float64)
+            own = np.zeros(grid.shape, bool)
+            cells = cand.cells_ij[grid.in_bounds(cand.cells_ij)]
+            own[cells[:, 0], cells[:, 1]] = True
+            own = region_within(own, pc.stop_view_own_m, grid.resolution_m)
+            ij = grid.xy_to_ij(xy)
+            inb = grid.in_bounds(ij)
+            on_obj = np.zeros(len(xy), bool)
+            on_obj[inb] = own[ij[inb, 0], ij[inb, 1]]
+            seen[np.flatnonzero(hid)[on_obj]] = True
+            occluder = xy[~on_obj]
+        n_in, n_seen = int(ok.sum()), int(seen.sum())
+        if n_in < pc.stop_view_min_points or n_seen >= pc.stop_view_min_share * n_in:
+            return n_in, n_seen, None
+        return n_in, n_seen, occluder
+
+    def _occluder_mask(self, cand_id: int) -> np.ndarray:
+        """(H, W) bool: cells of what hid candidate ``cand_id`` from a stop spot."""
+        xy = [(x, y) for c, x, y in self._state.occluders if c == cand_id]
+        mask = np.zeros(self.grid.shape, bool)
+        if xy:
+            ij = self.grid.xy_to_ij(np.asarray(xy, np.float64))
+            ij = ij[self.grid.in_bounds(ij)]
+            mask[ij[:, 0], ij[:, 1]] = True
+            # a line of sight slips between the frame's sparse points: close the gaps
+            mask = region_within(mask, self.config.policy.stop_view_occluder_m, self.grid.resolution_m)
+        return mask
+
     def _stop_cells(self, cand: Candidate) -> np.ndarray:
         """(H, W) bool: the cells the stop region is measured from. ``radius``: all the
         candidate's cells (the goal layer). ``core``: the share ``stop_core_quantile`` of them
         nearest to the median of its points, so that stray points (depth at a keypoint on the
-        object's edge read off the wall behind) do not pull the stop point off the object."""
+        object's edge read off the wall behind) do not pull the stop point off the object; with
+        ``stop_core_by="points"`` the share is of its points (the cells they fall in), so that
+        a cell weighs by the evidence in it."""
         pc = self.config.policy
         if pc.stop_rule == "radius" or len(cand.cells_ij) < 4:
             return self.grid.layers.goal
-        xy = self.grid.ij_to_xy(cand.cells_ij)
-        med = np.median(cand.points_xyz[:, :2], axis=0)
-        d = np.hypot(xy[:, 0] - med[0], xy[:, 1] - med[1])
-        keep = cand.cells_ij[d <= np.quantile(d, pc.stop_core_quantile)]
-        keep = keep[self.grid.in_bounds(keep)]
+        keep = core_cells(self.grid, cand, pc.stop_core_quantile, pc.stop_core_by)
         mask = np.zeros(self.grid.shape, bool)
         mask[keep[:, 0], keep[:, 1]] = True
         return mask
 
-    def _in_sight(self, region: np.ndarray, target: np.ndarray) -> np.ndarray:
+    def _in_sight(self, region: np.ndarray, target: np.ndarray, cand_id: int | None = None) -> np.ndarray:
         """The cells of ``region`` with a line of sight on the map to the centre of ``target``
         cells (success needs the object in view from the stop point): no obstacle cell on the
-        segment, except those within 0.3 m of the target (the object itself)."""
+        segment, except those within 0.3 m of the target (the object itself), and none of what
+        was seen to hide candidate ``cand_id`` (that counts however near the object it is)."""
         grid = self.grid
         cells = np.argwhere(region)
         tij = np.argwhere(target)
@@ -414,6 +503,8 @@ class ModIINAgent:
         centre = np.median(tij, axis=0)
         own = region_within(target, 0.3, grid.resolution_m)
         blocking = grid.layers.obstacle & ~own
+        if cand_id is not None:
+            blocking |= self._occluder_mask(cand_id)
         n = 48  # samples per segment: about 5 cm apart over 2.4 m
         t = np.linspace(0.0, 1.0, n)[None, :, None]
         pts = np.rint(cells[:, None, :] * (1 - t) + centre[None, None, :] * t).astype(np.int64)
@@ -422,7 +513,13 @@ class ModIINAgent:
         clear = ~blocking[pts[..., 0], pts[..., 1]].any(axis=1)
         out = np.zeros_like(region)
         out[cells[clear, 0], cells[clear, 1]] = True
-        return out if out.any() else region  # nothing in sight yet: the plain region
+        if out.any() or cand_id is None:
+            return out if out.any() else region  # nothing in sight yet: the plain region
+        # nothing in sight on the map: still keep out what was seen to hide the candidate
+        occ = self._occluder_mask(cand_id)
+        clear = ~occ[pts[..., 0], pts[..., 1]].any(axis=1)
+        out[cells[clear, 0], cells[clear, 1]] = True
+        return out if out.any() else region
 
     def _verify_by_approach(self, obs: Observation, cand: GoalCandidate) -> Decision | None:
         """VERIFY a potential candidate by approach (IEVE's explore-verify-exploit): go to the
@@ -507,9 +604,25 @@ class ModIINAgent:
             return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.APPROACH,
                             "at the goal: turning to face it", target_kind="goal", candidate=cand)
         if confirmed:
+            # the view check runs at every stop (its figures go into the reason, so that a run
+            # without it shows where it would have acted); it acts only with stop_needs_view
+            n_in, n_seen, occluder = self._core_view(obs, cand)
+            if occluder is not None and pc.stop_needs_view:
+                spots = tuple(sp for sp in self._state.hidden_spots if sp[0] == cand.id)
+                if len(spots) < pc.stop_view_max_spots:
+                    cells = np.unique(self.grid.xy_to_ij(occluder), axis=0)
+                    found = tuple((cand.id, float(x), float(y)) for x, y in self.grid.ij_to_xy(cells))
+                    self._set(hidden_spots=self._state.hidden_spots + ((cand.id, pose.x_m, pose.y_m),),
+                              occluders=self._state.occluders + found)
+                    log.info("goal candidate %s hidden from %.2f, %.2f: looking for another stop spot",
+                             cand.id, pose.x_m, pose.y_m)
+                    d = self._approach(obs, cand, trusted)
+                    n = len(spots) + 1
+                    return d if d is None else replace(d, reason=f"the goal is hidden from here ({n}): {d.reason}")
             why = ("the last resort" if trusted else "re-identified at close range" if pc.verify
                    else "close-range verification off")
-            return Decision(Action.STOP, Mode.STOPPED, f"within stop radius, facing the goal ({why})",
+            view = f"{n_seen} of {n_in} core points in the frame seen" + (", hidden" if occluder is not None else "")
+            return Decision(Action.STOP, Mode.STOPPED, f"within stop radius, facing the goal ({why}; {view})",
                             target_kind="goal", candidate=cand)
         self._set(verify=VerifyState(0))
         return self._at_candidate(obs, cand)
