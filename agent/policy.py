@@ -396,8 +396,8 @@ class ModIINAgent:
                 # The stop region can be out of reach (a TV on a deep stand, the middle of a
                 # bed): head for the reachable cells nearest to the goal instead.
                 wider = region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m) & ~hidden
-                if pc.stop_needs_view and pc.stop_rule == "core":
-                    wider = self._in_sight(wider, stop_cells, cand.id)
+                if pc.stop_rule == "core" and any(c == cand.id for c, _, _ in self._state.occluders):
+                    wider = self._in_sight(wider, stop_cells, cand.id)  # after the view check struck a spot off
                 plan = self.planner.plan(grid, field, pose, wider)
                 a = replace(a, region_unreachable=True)
         except PlanError as exc:

@@ -16,6 +16,9 @@ RERUN's records in place of the episodes RERUN holds, after checking the claim o
 A re-run that fails a check is an error (nothing is written): the splice would not be the
 variant's result.
 
+``--hidden-stop`` splices the view check at the stop (``policy.stop_needs_view``): it acts only at
+a STOP whose view of the candidate was hidden, which the base's final reason reports.
+
 ``--oscillation N`` splices the turn-in-place guard (``policy.oscillation_turns: N``) instead: it
 acts only after N alternating turns in a row, so the base episodes without such a run are
 untouched, and a re-run must repeat its base up to the action that completed the run.
@@ -44,6 +47,7 @@ class ActsAt:
 
     ended_in: str | None = None
     oscillation: int | None = None
+    hidden_stop: bool = False
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -51,6 +55,8 @@ class ActsAt:
         if self.oscillation is not None:
             k = first_oscillation(actions, self.oscillation)
             return None if k is None else k + 1
+        if self.hidden_stop:
+            return max(len(actions) - 1, 0) if stopped_hidden(rec) else None
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -58,7 +64,17 @@ class ActsAt:
     def why_not(self, rec: dict[str, Any]) -> str:
         if self.oscillation is not None:
             return f"the base never turned to and fro {self.oscillation} times in a row"
+        if self.hidden_stop:
+            return "the base's stop did not find the goal hidden"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
+
+
+def stopped_hidden(rec: dict[str, Any]) -> bool:
+    """Whether the base's final STOP found the candidate hidden from the stop spot (its reason
+    says ", hidden)"): the view check (``policy.stop_needs_view``) acts only at such a stop, as
+    it runs only when the agent is about to STOP, and the agent stops once."""
+    m = rec.get("modiin") or {}
+    return m.get("final_mode") == "stopped" and ", hidden)" in str(m.get("final_reason") or "")
 
 
 def _turn(a: Any) -> int:
@@ -162,8 +178,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--ended-in", default="exhausted", help="the base episodes' final mode from which the change acts")
     p.add_argument("--oscillation", type=int, default=None, metavar="N",
                    help="instead: the change acts after the base's first N alternating turns on the spot")
+    p.add_argument("--hidden-stop", action="store_true",
+                   help="instead: the change acts at the base's final STOP where its view check found the goal hidden "
+                        "(the view check, policy.stop_needs_view)")
     args = p.parse_args(argv)
-    acts_at = ActsAt(oscillation=args.oscillation) if args.oscillation else ActsAt(ended_in=args.ended_in)
+    if args.hidden_stop:
+        acts_at = ActsAt(hidden_stop=True)
+    elif args.oscillation:
+        acts_at = ActsAt(oscillation=args.oscillation)
+    else:
+        acts_at = ActsAt(ended_in=args.ended_in)
     base, rerun = read_records(Path(args.base)), read_records(Path(args.rerun))
     missing = missing_reruns(base, rerun, acts_at)
     if missing:
