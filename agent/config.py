@@ -64,10 +64,12 @@ class PolicyConfig:
     # success needs the object in view from the stop point. At the stop, facing the candidate,
     # its points that fall in the frame are checked against the depth image: when fewer than
     # ``stop_view_min_share`` of them (and at least ``stop_view_min_points`` fall in the frame)
-    # are seen, not hidden behind something nearer (a wall between
-    # the robot and an object against its other side), the spot is struck off the candidate's
-    # stop region and the approach goes on; after ``stop_view_max_spots`` such spots it stops
-    # anyway. Points out of the frame (a low object below the level camera) are no evidence
+    # are seen, not hidden behind something nearer (a wall between the robot and an object
+    # against its other side; the object's own near side counts as seen), the spot is struck
+    # off the candidate's stop region, what hid it blocks the line of sight, and the approach
+    # goes on; after ``stop_view_max_spots`` such spots, or when no other spot can be reached,
+    # it stops where it can, as without the check. Points out of the frame (a low object below
+    # the level camera) are no evidence
     stop_needs_view: bool = False
     stop_view_min_share: float = 0.1  # the simulator calls an object visible from 10% of its sample points
     stop_view_min_points: int = 10

@@ -129,6 +129,8 @@ class PolicyState:
     hidden_spots: tuple[tuple[int, float, float], ...] = ()
     # (candidate id, x, y) of what hid it there (points of the depth frame): blocks its line of sight
     occluders: tuple[tuple[int, float, float], ...] = ()
+    # candidates for which no spot in view could be reached: they are stopped at where the robot can
+    view_given_up: frozenset[int] = frozenset()
     last_resort: "LastResortState" = field(default_factory=lambda: LastResortState())
 
 

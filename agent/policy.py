@@ -404,6 +404,8 @@ class ModIINAgent:
             a = replace(a, unreachable_steps=a.unreachable_steps + 1)
             self._set(approach=a)
             if a.unreachable_steps >= pc.unreachable_goal_steps:
+                if self._give_up_view(cand):
+                    return self._approach(obs, cand, trusted)
                 self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"unreachable for {a.unreachable_steps} steps")
                 return None
             # keep looking around: the map may open a way (a new view, a cleared collision)
@@ -414,10 +416,27 @@ class ModIINAgent:
         a = a.after_plan(cand.centroid_xy_m, plan.distance_m)
         self._set(approach=a)
         if a.stall_steps > pc.approach_patience_steps:
+            if self._give_up_view(cand):
+                return self._approach(obs, cand, trusted)
             self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"no progress for {a.stall_steps} steps")
             return None
         return Decision(self._safe(plan, pose, field), Mode.APPROACH, "navigating to the goal candidate", plan=plan,
                         target_kind="goal", candidate=cand)
+
+    def _give_up_view(self, cand: Candidate) -> bool:
+        """After the view check struck stop spots off ``cand``, no other spot could be reached:
+        forget the struck spots and what hid it, and stop where the robot can, as without the
+        check (a true goal behind a wall is not rejected for it). False when there is nothing
+        to give up (the candidate is then rejected as before)."""
+        if cand.id in self._state.view_given_up or not any(c == cand.id for c, _, _ in self._state.hidden_spots):
+            return False
+        log.info("no stop spot in view of goal candidate %s could be reached: stopping where the robot can", cand.id)
+        st = self._state
+        self._set(hidden_spots=tuple(sp for sp in st.hidden_spots if sp[0] != cand.id),
+                  occluders=tuple(o for o in st.occluders if o[0] != cand.id),
+                  view_given_up=st.view_given_up | {cand.id},
+                  approach=replace(st.approach, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0))
+        return True
 
     def _hidden_spots_mask(self, cand: Candidate) -> np.ndarray:
         """(H, W) bool: the cells near the stop spots from which ``cand`` was found hidden."""
@@ -607,7 +626,7 @@ class ModIINAgent:
             # the view check runs at every stop (its figures go into the reason, so that a run
             # without it shows where it would have acted); it acts only with stop_needs_view
             n_in, n_seen, occluder = self._core_view(obs, cand)
-            if occluder is not None and pc.stop_needs_view:
+            if occluder is not None and pc.stop_needs_view and cand.id not in self._state.view_given_up:
                 spots = tuple(sp for sp in self._state.hidden_spots if sp[0] == cand.id)
                 if len(spots) < pc.stop_view_max_spots:
                     cells = np.unique(self.grid.xy_to_ij(occluder), axis=0)

@@ -59,7 +59,7 @@ def test_points_in_view_sees_an_open_face_and_not_one_behind_a_wall():
     assert n_in == 0 and n_seen == 0
 
 
-def _partition_world():
+def _partition_world(closed: bool = False):
     """A TV-like goal (0.15 m deep) against a partition wall, with a table before it and a wall
     from the table to the room's side: from the start the only way to the goal leads round the
     table and behind the partition, where the stop region's cells are within 0.6 m of the goal
@@ -70,7 +70,10 @@ def _partition_world():
     table = (2.2, -0.6, 3.1, 1.8, 0.45)
     side_wall = (2.1, -2.5, 2.2, -0.6, 2.5)
     goal = (3.2, -0.5, 3.35, 0.5, 1.2)
-    boxes = walls + [partition, table, side_wall, goal]
+    boxes = walls + [partition, table, side_wall]
+    if closed:  # a wall from the partition to the room's side closes the spot in view off
+        boxes.append((3.35, -2.5, 3.45, -0.6, 2.5))
+    boxes.append(goal)
     return BoxWorld(boxes, Pose2D(0.5, 0.0, 0.0), len(boxes) - 1)
 
 
@@ -91,3 +94,17 @@ def test_a_stop_spot_with_the_goal_hidden_is_struck_off():
     assert last.mode == Mode.STOPPED
     # it stopped past the partition's end, the goal in view
     assert world.pose.y_m < -0.6 and world.goal_visible(world.observe()) and world.distance_to_goal() < 1.0
+
+
+def test_with_no_spot_in_view_within_reach_it_stops_where_it_can():
+    # the spot past the partition's end is walled off: every reachable stop spot has the goal
+    # hidden. The view check strikes them off, finds no other, and stops behind the partition
+    # as without it, rather than rejecting the goal
+    world = _partition_world(closed=True)
+    steps = run_decisions(oracle_agent(world, look_around_turns=0, stop_rule="core", stop_radius_m=0.6,
+                                       stop_needs_view=True), world, max_steps=600)
+    assert any(d.reason.startswith("the goal is hidden from here") for d, _ in steps)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and last.reason.endswith(", hidden)")
+    assert not any(c.state == "rejected" for c in rec.candidates)
+    assert world.pose.x_m > 3.45 and world.distance_to_goal() < 0.6
