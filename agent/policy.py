@@ -59,10 +59,10 @@ from agent.mapping import GridMap
 from agent.motion import after_action, blocked_here, move_key, safe_action
 from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
-from agent.projection import lift_pixels, view_of_points
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
+from agent.stop_region import cells_near, core_view, in_sight, stop_cells as stop_cells_of
 from agent.types import FORWARD_STEP_M, Action, AgentRecord, Observation, Pose2D, wrap_angle
 
 log = logging.getLogger(__name__)
@@ -72,30 +72,6 @@ OracleEgoMask = Callable[[Observation], np.ndarray]
 
 _EMPTY2 = np.zeros((0, 2), np.float32)
 _EMPTY3 = np.zeros((0, 3), np.float32)
-
-
-def core_points(cand: Candidate, quantile: float) -> np.ndarray:
-    """(M, 3) the share ``quantile`` of the candidate's points nearest (in xy) to their median."""
-    pts = cand.points_xyz
-    med = np.median(pts[:, :2], axis=0)
-    d = np.hypot(pts[:, 0] - med[0], pts[:, 1] - med[1])
-    return pts[d <= np.quantile(d, quantile)]
-
-
-def core_cells(grid: GridMap, cand: Candidate, quantile: float, by: str = "points") -> np.ndarray:
-    """(K, 2) in-bounds cells of the candidate's core: those nearest to the median of its points.
-    ``by="points"``: the cells of the share ``quantile`` of its points nearest to the median,
-    so that each cell weighs by the evidence in it; ``by="cells"``: that share of its cells."""
-    if by == "points":
-        keep = np.unique(grid.xy_to_ij(core_points(cand, quantile)[:, :2]), axis=0)
-    elif by == "cells":
-        med = np.median(cand.points_xyz[:, :2], axis=0)
-        xy = grid.ij_to_xy(cand.cells_ij)
-        d = np.hypot(xy[:, 0] - med[0], xy[:, 1] - med[1])
-        keep = cand.cells_ij[d <= np.quantile(d, quantile)]
-    else:
-        raise ValueError(f"core_cells: unknown by={by!r}")
-    return keep[grid.in_bounds(keep)]
 
 
 class ModIINAgent:
@@ -440,105 +416,23 @@ class ModIINAgent:
 
     def _hidden_spots_mask(self, cand: Candidate) -> np.ndarray:
         """(H, W) bool: the cells near the stop spots from which ``cand`` was found hidden."""
-        spots = [(x, y) for c, x, y in self._state.hidden_spots if c == cand.id]
-        mask = np.zeros(self.grid.shape, bool)
-        if not spots:
-            return mask
-        ij = self.grid.xy_to_ij(np.asarray(spots, np.float64))
-        ij = ij[self.grid.in_bounds(ij)]
-        mask[ij[:, 0], ij[:, 1]] = True
-        return region_within(mask, self.config.policy.stop_view_spot_radius_m, self.grid.resolution_m)
-
-    def _core_view(self, obs: Observation, cand: Candidate) -> tuple[int, int, np.ndarray | None]:
-        """How the depth frame sees the candidate's core: (points in the frame with a depth
-        reading, those seen, and None unless it is hidden: then the (M, 2) run-frame xy of what
-        hides it, the frame's points before the unseen ones). Hidden: at least
-        ``stop_view_min_points`` in the frame and fewer than ``stop_view_min_share`` of them
-        seen. Points out of the frame, or where the depth has no reading, are no evidence."""
-        pc = self.config.policy
-        grid = self.grid
-        ok, seen, uv = view_of_points(core_points(cand, pc.stop_core_quantile), obs, pc.stop_view_margin_m,
-                                      pc.stop_view_margin_frac)
-        hid = ok & ~seen
-        occluder = np.zeros((0, 2))
-        if hid.any():
-            # what the frame shows there instead: the object's own near side (seen from another
-            # side than its points were) counts as seen, anything else hides it
-            u, v = uv[hid, 0], uv[hid, 1]
-            xy = lift_pixels(u, v, obs.depth_m[v, u], obs.intrinsics, obs.pose, obs.camera_height_m,
-                             obs.camera_tilt_rad).xyz_run[:, :2].astype(np.float64)
-            own = np.zeros(grid.shape, bool)
-            cells = cand.cells_ij[grid.in_bounds(cand.cells_ij)]
-            own[cells[:, 0], cells[:, 1]] = True
-            own = region_within(own, pc.stop_view_own_m, grid.resolution_m)
-            ij = grid.xy_to_ij(xy)
-            inb = grid.in_bounds(ij)
-            on_obj = np.zeros(len(xy), bool)
-            on_obj[inb] = own[ij[inb, 0], ij[inb, 1]]
-            seen[np.flatnonzero(hid)[on_obj]] = True
-            occluder = xy[~on_obj]
-        n_in, n_seen = int(ok.sum()), int(seen.sum())
-        if n_in < pc.stop_view_min_points or n_seen >= pc.stop_view_min_share * n_in:
-            return n_in, n_seen, None
-        return n_in, n_seen, occluder
+        return cells_near(self.grid, [(x, y) for c, x, y in self._state.hidden_spots if c == cand.id],
+                          self.config.policy.stop_view_spot_radius_m)
 
     def _occluder_mask(self, cand_id: int) -> np.ndarray:
-        """(H, W) bool: cells of what hid candidate ``cand_id`` from a stop spot."""
-        xy = [(x, y) for c, x, y in self._state.occluders if c == cand_id]
-        mask = np.zeros(self.grid.shape, bool)
-        if xy:
-            ij = self.grid.xy_to_ij(np.asarray(xy, np.float64))
-            ij = ij[self.grid.in_bounds(ij)]
-            mask[ij[:, 0], ij[:, 1]] = True
-            # a line of sight slips between the frame's sparse points: close the gaps
-            mask = region_within(mask, self.config.policy.stop_view_occluder_m, self.grid.resolution_m)
-        return mask
+        """(H, W) bool: cells of what hid candidate ``cand_id`` from a stop spot (grown a little:
+        a line of sight slips between the frame's sparse points)."""
+        return cells_near(self.grid, [(x, y) for c, x, y in self._state.occluders if c == cand_id],
+                          self.config.policy.stop_view_occluder_m)
 
     def _stop_cells(self, cand: Candidate) -> np.ndarray:
-        """(H, W) bool: the cells the stop region is measured from. ``radius``: all the
-        candidate's cells (the goal layer). ``core``: the share ``stop_core_quantile`` of them
-        nearest to the median of its points, so that stray points (depth at a keypoint on the
-        object's edge read off the wall behind) do not pull the stop point off the object; with
-        ``stop_core_by="points"`` the share is of its points (the cells they fall in), so that
-        a cell weighs by the evidence in it."""
-        pc = self.config.policy
-        if pc.stop_rule == "radius" or len(cand.cells_ij) < 4:
-            return self.grid.layers.goal
-        keep = core_cells(self.grid, cand, pc.stop_core_quantile, pc.stop_core_by)
-        mask = np.zeros(self.grid.shape, bool)
-        mask[keep[:, 0], keep[:, 1]] = True
-        return mask
+        """(H, W) bool: the cells the stop region is measured from (``agent.stop_region``)."""
+        return stop_cells_of(self.grid, cand, self.config.policy)
 
     def _in_sight(self, region: np.ndarray, target: np.ndarray, cand_id: int | None = None) -> np.ndarray:
-        """The cells of ``region`` with a line of sight on the map to the centre of ``target``
-        cells (success needs the object in view from the stop point): no obstacle cell on the
-        segment, except those within 0.3 m of the target (the object itself), and none of what
-        was seen to hide candidate ``cand_id`` (that counts however near the object it is)."""
-        grid = self.grid
-        cells = np.argwhere(region)
-        tij = np.argwhere(target)
-        if len(cells) == 0 or len(tij) == 0:
-            return region
-        centre = np.median(tij, axis=0)
-        own = region_within(target, 0.3, grid.resolution_m)
-        blocking = grid.layers.obstacle & ~own
-        if cand_id is not None:
-            blocking |= self._occluder_mask(cand_id)
-        n = 48  # samples per segment: about 5 cm apart over 2.4 m
-        t = np.linspace(0.0, 1.0, n)[None, :, None]
-        pts = np.rint(cells[:, None, :] * (1 - t) + centre[None, None, :] * t).astype(np.int64)
-        pts[..., 0] = np.clip(pts[..., 0], 0, grid.shape[0] - 1)
-        pts[..., 1] = np.clip(pts[..., 1], 0, grid.shape[1] - 1)
-        clear = ~blocking[pts[..., 0], pts[..., 1]].any(axis=1)
-        out = np.zeros_like(region)
-        out[cells[clear, 0], cells[clear, 1]] = True
-        if out.any() or cand_id is None:
-            return out if out.any() else region  # nothing in sight yet: the plain region
-        # nothing in sight on the map: still keep out what was seen to hide the candidate
-        occ = self._occluder_mask(cand_id)
-        clear = ~occ[pts[..., 0], pts[..., 1]].any(axis=1)
-        out[cells[clear, 0], cells[clear, 1]] = True
-        return out if out.any() else region
+        """``agent.stop_region.in_sight``, with what was seen to hide candidate ``cand_id``."""
+        occluder = self._occluder_mask(cand_id) if cand_id is not None else None
+        return in_sight(self.grid, region, target, occluder)
 
     def _verify_by_approach(self, obs: Observation, cand: GoalCandidate) -> Decision | None:
         """VERIFY a potential candidate by approach (IEVE's explore-verify-exploit): go to the
@@ -625,7 +519,7 @@ class ModIINAgent:
         if confirmed:
             # the view check runs at every stop (its figures go into the reason, so that a run
             # without it shows where it would have acted); it acts only with stop_needs_view
-            n_in, n_seen, occluder = self._core_view(obs, cand)
+            n_in, n_seen, occluder = core_view(self.grid, cand, obs, pc)
             if occluder is not None and pc.stop_needs_view and cand.id not in self._state.view_given_up:
                 spots = tuple(sp for sp in self._state.hidden_spots if sp[0] == cand.id)
                 if len(spots) < pc.stop_view_max_spots:

@@ -8,7 +8,7 @@ import numpy as np
 from agent.localisation import Candidate
 from agent.mapping import GridMap
 from agent.modes import Mode
-from agent.policy import core_cells, core_points
+from agent.stop_region import core_cells, core_points
 from agent.projection import points_in_view
 from agent.types import Pose2D
 from agent_scenes import BoxWorld, observation, room_walls
