@@ -8,10 +8,11 @@ The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
                                                         |                              |
                                                      STOPPED <------(confirmed)--------+
     EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
-                                                        |
-                               (policy.last_resort, a rejected candidate left)
-                                                        v
-                                   LAST_RESORT --(in its stop region)--> STOPPED
+       |                                                |
+       |                       (policy.last_resort, a rejected candidate left)
+       |                                                v
+       +--(the step budget runs out, ----------> LAST_RESORT --(in its stop region)--> STOPPED
+           policy.last_resort_at_deadline)
 
 Each mode's memory is a small frozen dataclass; the agent replaces it (``dataclasses.replace``)
 rather than mutating counters, and every step ends in one frozen ``Decision`` that goes into
@@ -141,3 +142,6 @@ class LastResortState:
 
     candidate_id: int | None = None
     tried: frozenset[int] = frozenset()
+    # the step budget is running out (``policy.last_resort_at_deadline``): from that step on the
+    # last resort comes before exploration
+    deadline: bool = False

@@ -57,7 +57,7 @@ from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
 from agent.motion import after_action, blocked_here, move_key, safe_action
-from agent.modes import SCAN_TURNS, ApproachState, Decision, LastResortState, Mode, PolicyState, RescanState, VerifyState
+from agent.modes import SCAN_TURNS, ApproachState, Decision, Mode, PolicyState, RescanState, VerifyState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
@@ -341,7 +341,47 @@ class ModIINAgent:
                 return self._decide(obs, cands)
         else:
             self.grid.clear_goal()
+        if self._deadline_due(obs):
+            decision = self._last_resort(obs)
+            if decision is not None:
+                left = self.config.policy.step_budget - obs.step
+                return replace(decision, reason=f"{left} steps of the budget left: {decision.reason}")
         return self._explore(obs)
+
+    def _deadline_due(self, obs: Observation) -> bool:
+        """Whether the step budget is running out with a rejected candidate left
+        (``policy.last_resort_at_deadline``): the steps left are no more than the way to the best
+        one needs (geodesic distance in forward steps, times ``deadline_path_factor``, plus
+        ``deadline_margin_steps``). Once due, it stays due: the last resort then comes before
+        exploration until no rejected candidate is left to try."""
+        pc = self.config.policy
+        if not pc.last_resort_at_deadline or pc.step_budget <= 0:
+            return False
+        lr = self._state.last_resort
+        if lr.deadline:
+            return True
+        left = pc.step_budget - obs.step
+        if left > pc.deadline_window_steps:
+            return False
+        cid = self.memory.best_rejected(exclude=lr.tried)
+        if cid is None:
+            return False
+        cand = self.memory.rejected_cluster(cid, self.grid.xy_to_ij)
+        cells = np.zeros(self.grid.shape, bool)
+        ok = self.grid.in_bounds(cand.cells_ij)
+        cells[cand.cells_ij[ok, 0], cand.cells_ij[ok, 1]] = True
+        near = region_within(cells, pc.stop_radius_m + pc.stop_radius_slack_m, self.grid.resolution_m)
+        field = self.planner.distance_field(self.grid, obs.pose, extra_targets=near)
+        d = float(np.min(field.distance_m, where=field.window(near), initial=np.inf))
+        if not math.isfinite(d):
+            return False
+        need = math.ceil(d / FORWARD_STEP_M * pc.deadline_path_factor) + pc.deadline_margin_steps
+        if left > need:
+            return False
+        log.info("%d steps left, about %d needed to reach rejected candidate %d (%.1f m): the last resort now",
+                 left, need, cid, d)
+        self._set(last_resort=replace(lr, deadline=True))
+        return True
 
     def _approach(self, obs: Observation, cand: Candidate, trusted: bool = False) -> Decision | None:
         """APPROACH (and VERIFY at the stop point); None when the candidate was rejected.
@@ -606,7 +646,7 @@ class ModIINAgent:
                 cid = self.memory.best_rejected(exclude=lr.tried)
                 if cid is None:
                     return None
-                lr = LastResortState(candidate_id=cid, tried=lr.tried | {cid})
+                lr = replace(lr, candidate_id=cid, tried=lr.tried | {cid})
                 self._set(last_resort=lr)
                 log.info("nothing left to explore: trying rejected candidate %d (best score %.1f) as the last resort",
                          cid, self.memory.best_score_of(cid))

@@ -19,6 +19,10 @@ variant's result.
 ``--hidden-stop`` splices the view check at the stop (``policy.stop_needs_view``): it acts only at
 a STOP whose view of the candidate was hidden, which the base's final reason reports.
 
+``--from-step N`` splices the last resort at the deadline (``policy.last_resort_at_deadline``): it
+checks only in the last ``deadline_window_steps`` of the budget, so it cannot act before step N
+(1000 - 200 = 800 by default), and the base episodes that ended by then are untouched.
+
 ``--oscillation N`` splices the turn-in-place guard (``policy.oscillation_turns: N``) instead: it
 acts only after N alternating turns in a row, so the base episodes without such a run are
 untouched, and a re-run must repeat its base up to the action that completed the run.
@@ -43,15 +47,20 @@ class ActsAt:
     ``ended_in``: at the base's final step, when the episode ended in that final mode (the last
     resort acts where the base stopped ``exhausted``). ``oscillation``: at the step after the
     base's first run of that many alternating turns (left, right, left, ... on the spot; the
-    turn-in-place guard counts the same run of the agent's own actions)."""
+    turn-in-place guard counts the same run of the agent's own actions). ``from_step``: at any
+    step from that one on, in the base episodes that went on past it (the last resort at the
+    deadline checks only in the last ``deadline_window_steps`` of the budget)."""
 
     ended_in: str | None = None
     oscillation: int | None = None
     hidden_stop: bool = False
+    from_step: int | None = None
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
         actions = (rec.get("trajectory") or {}).get("actions") or []
+        if self.from_step is not None:
+            return self.from_step if len(actions) > self.from_step else None
         if self.oscillation is not None:
             k = first_oscillation(actions, self.oscillation)
             return None if k is None else k + 1
@@ -62,6 +71,8 @@ class ActsAt:
         return max(len(actions) - 1, 0)
 
     def why_not(self, rec: dict[str, Any]) -> str:
+        if self.from_step is not None:
+            return f"the base ended within its first {self.from_step} steps"
         if self.oscillation is not None:
             return f"the base never turned to and fro {self.oscillation} times in a row"
         if self.hidden_stop:
@@ -181,8 +192,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--hidden-stop", action="store_true",
                    help="instead: the change acts at the base's final STOP where its view check found the goal hidden "
                         "(the view check, policy.stop_needs_view)")
+    p.add_argument("--from-step", type=int, default=None, metavar="N",
+                   help="instead: the change can act only from step N on, in base episodes longer than N steps "
+                        "(the last resort at the deadline: step_budget - deadline_window_steps, 800)")
     args = p.parse_args(argv)
-    if args.hidden_stop:
+    if args.from_step is not None:
+        acts_at = ActsAt(from_step=args.from_step)
+    elif args.hidden_stop:
         acts_at = ActsAt(hidden_stop=True)
     elif args.oscillation:
         acts_at = ActsAt(oscillation=args.oscillation)

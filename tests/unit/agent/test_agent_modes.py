@@ -81,16 +81,16 @@ def test_verify_scans_then_rejects_an_unconfirmed_candidate():
     assert after.candidate is None and after.mode in (Mode.EXPLORE, Mode.RESCAN, Mode.EXHAUSTED)
 
 
-def _rejected_then_exhausted(last_resort: bool):
+def _rejected_then_exhausted(last_resort: bool, max_steps: int = 600, **policy):
     """The goal is re-identified only from afar, so close-range verification rejects it; then
-    exploration of the two small rooms runs out."""
+    exploration of the two small rooms runs out (at about step 65)."""
     boxes, goal, _ = two_rooms()
     world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
     agent = ModIINAgent(oracle_config(verify=True, verify_range_m=1.5, look_around_turns=4, max_rescans=1,
-                                      last_resort=last_resort),
+                                      last_resort=last_resort, **policy),
                         oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() > 2.0,
                         oracle_ego_mask=world.goal_mask)
-    return world, run_decisions(agent, world, max_steps=600)
+    return world, run_decisions(agent, world, max_steps=max_steps)
 
 
 def test_last_resort_goes_back_to_the_rejected_candidate_and_stops_there():
@@ -116,6 +116,47 @@ def test_without_the_last_resort_the_same_run_stops_exhausted_where_it_stands():
     modes = [d.mode for d, _ in steps]
     assert Mode.LAST_RESORT not in modes and Mode.STOPPED not in modes
     assert steps[-1][0].mode == Mode.EXHAUSTED and steps[-1][0].action == Action.STOP
+
+
+def test_the_last_resort_at_the_deadline_goes_back_before_the_budget_runs_out():
+    # a budget of 100 steps: exploration would still be going when it runs out (step 65 is
+    # where it ends with the budget unknown), so the run would end without a STOP
+    world, steps = _rejected_then_exhausted(last_resort=False, max_steps=100, last_resort_at_deadline=True,
+                                            step_budget=100)
+    modes = [d.mode for d, _ in steps]
+    assert Mode.LAST_RESORT in modes and Mode.RESCAN not in modes
+    k = modes.index(Mode.LAST_RESORT)
+    assert modes.index(Mode.VERIFY) < k and Mode.EXPLORE in modes[modes.index(Mode.VERIFY):k]
+    rejected = [c for c in steps[k - 1][1].candidates if c.state == "rejected"]
+    assert len(rejected) == 1
+    # from the step it was due on, the last resort comes before exploration, to the end
+    assert all(d.mode in (Mode.LAST_RESORT, Mode.STOPPED) for d, _ in steps[k:])
+    assert all(d.candidate is not None and d.candidate.id == rejected[0].id for d, _ in steps[k:])
+    first = steps[k][0].reason
+    assert first.split(" steps of the budget left: ")[1].startswith("last resort (rejected candidate")
+    left = int(first.split(" ")[0])
+    assert left == 100 - k and 0 < left <= 100 - 15  # due after the rejection (step 15), before the end
+    last, rec = steps[-1]
+    assert last.action == Action.STOP and last.mode == Mode.STOPPED and "the last resort" in last.reason
+    assert len(steps) < 100 and world.distance_to_goal() < 1.0
+
+
+def test_without_the_deadline_the_same_budget_runs_out_exploring():
+    world, steps = _rejected_then_exhausted(last_resort=False, max_steps=60, last_resort_at_deadline=False,
+                                            step_budget=60)
+    modes = [d.mode for d, _ in steps]
+    assert len(steps) == 60 and Mode.LAST_RESORT not in modes and steps[-1][0].action != Action.STOP
+    assert world.distance_to_goal() > 1.0
+
+
+def test_the_deadline_is_not_checked_before_its_window():
+    # a budget of 1000 with the default window of 200: exploration ends (step 65) long before
+    # the window opens, so the run is the run without the deadline, action for action
+    on = _rejected_then_exhausted(last_resort=True, last_resort_at_deadline=True, step_budget=1000)[1]
+    off = _rejected_then_exhausted(last_resort=True)[1]
+    assert [d.action for d, _ in on] == [d.action for d, _ in off]
+    assert [d.reason for d, _ in on] == [d.reason for d, _ in off]
+    assert "steps of the budget left" not in " ".join(d.reason for d, _ in on)
 
 
 def test_approach_turns_to_face_before_stopping():

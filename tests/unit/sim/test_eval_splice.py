@@ -120,3 +120,27 @@ def test_the_view_check_splices_only_where_the_base_stopped_with_the_goal_hidden
     assert out[0]["success"] and out[1] is seen
     with pytest.raises(ValueError, match="did not find the goal hidden"):
         splice([hidden, seen], [rec("v", [F, F, F, S], "stopped", home=2)], at)
+
+
+def test_the_deadline_splices_the_episodes_that_went_past_its_first_step(tmp_path):
+    from sim.evaluation.splice import ActsAt
+
+    long_ = rec("long", [F, L, F, L, F, L], "explore")  # went on past step 3 (a time-out, say)
+    short = rec("short", [F, F, S], "stopped", success=True, home=2)  # ended before step 3
+    at = ActsAt(from_step=3)
+    assert at.untouched(long_) == 3 and at.untouched(short) is None
+    assert missing_reruns([long_, short], [], at) == ["long"]
+    # the re-run may differ from step 3 on, not before
+    out = splice([long_, short], [rec("long", [F, L, F, F, S], "stopped", success=True)], at)
+    assert out[0]["success"] and out[0]["steps"] == 5 and out[1] is short
+    with pytest.raises(ValueError, match="actions differ at step 2"):
+        splice([long_, short], [rec("long", [F, L, L, F, S], "stopped")], at)
+    with pytest.raises(ValueError, match="ended within its first 3 steps"):
+        splice([long_, short], [rec("short", [F, F, F, S], "stopped", home=2)], at)
+    # the command line: --from-step
+    for name, records in (("base", [long_, short]), ("rerun", [rec("long", [F, L, F, F, S], "stopped", success=True)])):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert main([str(tmp_path / "base"), str(tmp_path / "rerun"), "--out", str(tmp_path / "out"), "--from-step", "3"]) == 0
+    got = [json.loads(x) for x in (tmp_path / "out" / "episodes.jsonl").read_text().splitlines()]
+    assert [r["success"] for r in got] == [True, True]
