@@ -73,9 +73,10 @@ class CandidateMemory:
         self._clusters: dict[int, tuple[Candidate, np.ndarray]] = {}
 
     def reject(self, cand: GoalCandidate | Candidate, robot_xy_m: tuple[float, float],
-               cells_xy_m: np.ndarray | None = None) -> None:
-        """Record a rejection. ``cells_xy_m``: the centres of its cells (kept with the cluster
-        for ``rejected_cluster``). Rejecting it again keeps the best evidence seen."""
+               cells_xy_m: np.ndarray | None = None, why: str | None = None) -> None:
+        """Record a rejection (``why``: the policy's reason). ``cells_xy_m``: the centres of its
+        cells (kept with the cluster for ``rejected_cluster``). Rejecting it again keeps the best
+        evidence seen and the latest reason."""
         cl = cand.cluster if isinstance(cand, GoalCandidate) else cand
         n_views = len(cand.views) if isinstance(cand, GoalCandidate) else cl.n_frames
         best = cand.best_score if isinstance(cand, GoalCandidate) else cl.max_score
@@ -83,7 +84,7 @@ class CandidateMemory:
         if old is not None:
             n_views, best = max(n_views, old.n_views), max(float(best), old.best_score)
         self._rejected[cl.id] = CandidateInfo(cl.id, CandidateState.REJECTED.value, cl.centroid_xy_m, n_views,
-                                              float(best), math.dist(cl.centroid_xy_m, robot_xy_m))
+                                              float(best), math.dist(cl.centroid_xy_m, robot_xy_m), why)
         if cells_xy_m is not None and len(cells_xy_m):
             self._clusters[cl.id] = (cl, np.asarray(cells_xy_m, np.float64).reshape(-1, 2))
 
@@ -107,6 +108,7 @@ class CandidateMemory:
     def infos(self, live: list[GoalCandidate], robot_xy_m: tuple[float, float]) -> tuple[CandidateInfo, ...]:
         out = [CandidateInfo(c.id, c.state.value, c.cluster.centroid_xy_m, len(c.views), float(c.best_score),
                              round(math.dist(c.cluster.centroid_xy_m, robot_xy_m), 3)) for c in live]
-        out += [CandidateInfo(r.id, r.state, r.xy_m, r.n_views, r.best_score, round(math.dist(r.xy_m, robot_xy_m), 3))
+        out += [CandidateInfo(r.id, r.state, r.xy_m, r.n_views, r.best_score, round(math.dist(r.xy_m, robot_xy_m), 3),
+                              r.why)
                 for k, r in self._rejected.items() if all(c.id != k for c in live)]
         return tuple(out)

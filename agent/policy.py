@@ -309,7 +309,7 @@ class ModIINAgent:
 
     def _reject(self, cand: Candidate, why: str, robot_xy_m: tuple[float, float]) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
-        self.memory.reject(cand, robot_xy_m, self.grid.ij_to_xy(cand.cells_ij))
+        self.memory.reject(cand, robot_xy_m, self.grid.ij_to_xy(cand.cells_ij), why)
         self._rejected_now = True
         # A candidate that never scored tau was only potential: reject its sub-tau evidence, not
         # a later detection there (a rejected true goal would otherwise be lost for good)

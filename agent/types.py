@@ -256,7 +256,8 @@ class CandidateInfo:
     state: ``potential`` (evidence below the detection threshold), ``confirmed`` (detected,
     and verified when verification is on) or ``rejected`` (blacklisted on the map).
     xy_m: centroid of its goal points, start-relative frame; n_views: frames that added points
-    to it; best_score: the highest re-ID score among them; distance_m: robot to the centroid now.
+    to it; best_score: the highest re-ID score among them; distance_m: robot to the centroid now;
+    why: for a rejected one, why the policy gave it up (its latest rejection).
     """
 
     id: int
@@ -265,6 +266,7 @@ class CandidateInfo:
     n_views: int
     best_score: float
     distance_m: float
+    why: str | None = None
 
 
 @dataclass(frozen=True, slots=True, eq=False)

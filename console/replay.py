@@ -101,6 +101,7 @@ def step_extras(rec: "StepRecord", config: ReplayConfig) -> dict[str, Any]:
             "n_views": int(c.n_views),
             "best_score": round(float(c.best_score), 2),
             "distance_m": round(float(c.distance_m), 2),
+            **({"why": str(c.why)} if getattr(c, "why", None) else {}),
         }
         for c in getattr(r, "candidates", ())
     ]

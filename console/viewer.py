@@ -372,7 +372,8 @@ class Viewer:
             plan_xy_m=np.asarray(ex.get("plan") or np.zeros((0, 2)), np.float32).reshape(-1, 2),
             map=snapshot,
             candidates=tuple(
-                CandidateInfo(c["id"], c["state"], tuple(c["xy_m"]), c["n_views"], c["best_score"], c["distance_m"])
+                CandidateInfo(c["id"], c["state"], tuple(c["xy_m"]), c["n_views"], c["best_score"], c["distance_m"],
+                              c.get("why"))
                 for c in ex.get("candidates", [])
             ),
         )

@@ -113,8 +113,11 @@ const imgnav = (() => {
     if (!cands || !cands.length) return el("p", { class: "hint", text: "No goal candidate yet." });
     const body = el("tbody", {});
     for (const c of cands) {
+      // a rejected candidate says why it was given up (hover, and after the badge)
+      const state = c.why ? el("td", { title: c.why }, badge(c.state), el("small", { class: "why", text: ` ${c.why}` }))
+        : el("td", {}, badge(c.state));
       body.append(el("tr", { class: `cand ${c.state}` },
-        el("td", { text: `#${c.id}` }), el("td", {}, badge(c.state)),
+        el("td", { text: `#${c.id}` }), state,
         el("td", { text: String(c.n_views) }),
         el("td", { text: `${fmt(c.best_score, 1)}${tau ? ` / ${fmt(tau, 1)}` : ""}` }),
         el("td", { text: `${fmt(c.distance_m, 1)} m` })));

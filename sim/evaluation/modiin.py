@@ -277,8 +277,11 @@ class Attribution:
         for c in getattr(self.last, "candidates", ()):
             x, y = self.oracle.start_pose_world.transform_xy(np.array([c.xy_m]))[0]
             to_goal = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
-            out.append({"id": c.id, "state": c.state, "n_views": c.n_views, "best_score": round(c.best_score, 1),
-                        "to_goal_m": round(to_goal, 2)})
+            row = {"id": c.id, "state": c.state, "n_views": c.n_views, "best_score": round(c.best_score, 1),
+                   "to_goal_m": round(to_goal, 2)}
+            if getattr(c, "why", None):
+                row["why"] = c.why
+            out.append(row)
         return out
 
     def cause(self, success: bool) -> str | None:

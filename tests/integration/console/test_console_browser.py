@@ -195,6 +195,7 @@ def test_console_candidates_live_then_replay_in_page_and_viewer(browser, scripte
         page.click("#jump-rejected-0")
         page.wait_for_function("() => document.getElementById('replay').dataset.step === '6'", timeout=60_000)
         assert page.locator("#replay-candidates tr.cand.rejected").count() == 1
+        assert "unreachable for 10 steps" in page.inner_text("#replay-candidates tr.cand.rejected")
         _scrub(page, 20)
         assert page.get_attribute("#replay-frame", "src").endswith("/replay/20/frame.jpg")
         frame.wait_for_selector("text=/Replay of run/", timeout=60_000)

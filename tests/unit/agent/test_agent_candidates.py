@@ -48,9 +48,14 @@ def test_memory_reports_live_and_rejected_candidates():
     (info,) = mem.infos(live, (0.0, 0.0))
     assert info.state == "confirmed" and info.n_views == 1 and info.best_score == 80.0
     assert 3.0 < info.distance_m < 3.7
-    mem.reject(live[0], (0.0, 0.0))
+    assert info.why is None
+    mem.reject(live[0], (0.0, 0.0), why="unreachable for 10 steps")
     (info,) = mem.infos([], (1.0, 0.0))
     assert info.state == "rejected" and info.id == cl.id and info.distance_m < 2.7
+    assert info.why == "unreachable for 10 steps"
+    # rejected again: the latest reason
+    mem.reject(live[0], (0.0, 0.0), why="no progress for 101 steps")
+    assert mem.infos([], (1.0, 0.0))[0].why == "no progress for 101 steps"
 
 
 def test_rejected_clusters_are_kept_for_the_last_resort_best_evidence_first():

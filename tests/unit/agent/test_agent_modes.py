@@ -77,8 +77,10 @@ def test_verify_scans_then_rejects_an_unconfirmed_candidate():
     assert all(d.reason == "scanning for a close-range match" for d, _ in steps[k:k + len(SCAN_TURNS)])
     # after the scan, the candidate is gone: never STOPPED at it
     assert Mode.STOPPED not in modes[k:]
-    after = steps[k + len(SCAN_TURNS)][0]
+    after, rec = steps[k + len(SCAN_TURNS)]
     assert after.candidate is None and after.mode in (Mode.EXPLORE, Mode.RESCAN, Mode.EXHAUSTED)
+    # the record says why it was given up
+    assert [c.why for c in rec.candidates if c.state == "rejected"] == ["no close-range re-identification"]
 
 
 def _rejected_then_exhausted(last_resort: bool, max_steps: int = 600, **policy):

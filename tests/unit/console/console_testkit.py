@@ -139,7 +139,8 @@ class ScriptedAgent:
             # a candidate appears (detected) at action 3 and is rejected at action 6
             goal_detected=self.n >= 3,
             candidates=() if self.n < 3 else (
-                CandidateInfo(1, "rejected" if self.n >= 6 else "confirmed", (0.3, 0.2), self.n - 2, 12.5, 0.4),
+                CandidateInfo(1, "rejected" if self.n >= 6 else "confirmed", (0.3, 0.2), self.n - 2, 12.5, 0.4,
+                              "unreachable for 10 steps" if self.n >= 6 else None),
             ),
         )
         self.n += 1

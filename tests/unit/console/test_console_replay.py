@@ -59,6 +59,10 @@ def test_timeline_marks_and_pictures(finished) -> None:
     assert first["mode_words"] == "exploring" and first["action_words"] == "forward"
     step = client.get(f"/api/runs/{run_id}/replay/4").json()
     assert step["candidates"][0]["state"] == "confirmed" and step["candidates"][0]["distance_m"] == 0.4
+    assert "why" not in step["candidates"][0]
+    # a rejected candidate carries the policy's reason
+    rejected = client.get(f"/api/runs/{run_id}/replay/6").json()["candidates"][0]
+    assert rejected["state"] == "rejected" and rejected["why"] == "unreachable for 10 steps"
     frame = client.get(step["frame_url"])
     assert frame.status_code == 200 and frame.headers["content-type"] == "image/jpeg"
     assert Image.open(io.BytesIO(frame.content)).size[0] == 180  # thumbnail width
