@@ -111,6 +111,10 @@ class PolicyConfig:
     # alternating turns in a row the frontier is given up, as after no progress, and one
     # rescan's forgiving is spent, so that the loop cannot come back for ever (0: off).
     oscillation_turns: int = 0
+    # The same run, got out of instead of given up: after this many alternating turns in a row,
+    # step forward once on the free heading (map traversible, not a remembered failed move) that
+    # ends nearest the path 1 m ahead, turning to it first without re-planning (0: off).
+    detour_after_turns: int = 0
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
 
 

@@ -113,6 +113,9 @@ class MotionState:
     # the run of alternating turns (left, right, left, ...) that ended with the last action
     alternating_turns: int = 0
     last_action: Action | None = None
+    # a side-step out of a to-and-fro run: (global cell i, cell j, heading bin) to step forward
+    # on from that cell (``motion.detour``); None: no detour under way
+    detour: tuple[int, int, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -38,14 +38,31 @@ def blocked_here(grid: GridMap, motion: MotionState, pose: Pose2D) -> bool:
 
 
 def safe_action(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, planner: FMMPlanner,
-                motion: MotionState) -> tuple[Action, MotionState]:
+                motion: MotionState, detour_after_turns: int = 0) -> tuple[Action, MotionState]:
     """The plan's action, unless it is a forward move that already failed from this very
     cell and heading: then turn towards the side the path bends to. And when the plan turns
     back to such a heading (it points between two 30 deg headings and the nearer one is
     blocked), step forward on the current heading instead, to get round what blocked the move,
     rather than turn to and fro on the spot; only where the map shows that step traversible.
+
+    ``detour_after_turns`` N > 0: after N turns to and fro on the spot, side-step (``detour``).
     Returns the action and the updated memory (``blocked_repeats`` counts refused moves in a row)."""
     key = move_key(grid, pose)
+    if motion.detour is not None:
+        di, dj, dh = motion.detour
+        if (di, dj) != key[:2]:
+            motion = replace(motion, detour=None)  # stepped off the cell: the detour is done
+        elif key[2] == dh:
+            return Action.MOVE_FORWARD, replace(motion, detour=None, blocked_repeats=0)
+        else:
+            return _turn_to_bin(key[2], dh), motion
+    if 0 < detour_after_turns <= motion.alternating_turns:
+        h = detour_heading(plan, pose, field, grid, planner, motion)
+        if h is not None:
+            motion = replace(motion, detour=(key[0], key[1], h))
+            if h == key[2]:
+                return Action.MOVE_FORWARD, replace(motion, detour=None, blocked_repeats=0)
+            return _turn_to_bin(key[2], h), motion
     if plan.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
         sign = 1.0 if plan.action == Action.TURN_LEFT else -1.0
         turned = Pose2D(pose.x_m, pose.y_m, pose.yaw_rad + sign * math.radians(TURN_ANGLE_DEG))
@@ -60,6 +77,44 @@ def safe_action(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, p
     far = path[min(len(path) - 1, 8)]
     err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
     return (Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT), replace(motion, blocked_repeats=motion.blocked_repeats + 1)
+
+
+def detour_heading(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, planner: FMMPlanner,
+                   motion: MotionState, aim_m: float = 1.0) -> int | None:
+    """The heading bin of a side-step out of a to-and-fro run, or None.
+
+    The run means the plan's next move is one that failed from here and every turn away from it
+    turns back (the path hugs a corner the map does not show where the robot meets it). Of the
+    12 forward steps from this cell, the candidates are those not remembered as failed that the
+    map shows traversible; the chosen one ends nearest to the point ``aim_m`` along the path,
+    and must end nearer to it than the robot is now. Ties go to the smaller turn."""
+    path = plan.path_xy_m
+    if len(path) < 2:
+        return None
+    seg = np.hypot(*np.diff(path, axis=0).T)
+    along = np.concatenate([[0.0], np.cumsum(seg)])
+    aim = path[min(int(np.searchsorted(along, aim_m)), len(path) - 1)]
+    here = np.array([pose.x_m, pose.y_m])
+    i, j, cur = move_key(grid, pose)
+    best: tuple[float, int, int] | None = None
+    for b in range(N_HEADINGS):
+        if (i, j, b) in motion.blocked:
+            continue
+        yaw = b * math.radians(TURN_ANGLE_DEG)
+        ahead = here + FORWARD_STEP_M * np.array([math.cos(yaw), math.sin(yaw)])
+        if not planner.line_free(grid, field, here, ahead):
+            continue
+        turn = min((b - cur) % N_HEADINGS, (cur - b) % N_HEADINGS)
+        cand = (float(np.hypot(*(ahead - aim))), turn, b)
+        if best is None or cand[:2] < best[:2]:
+            best = cand
+    if best is None or best[0] >= float(np.hypot(*(here - aim))):
+        return None
+    return best[2]
+
+
+def _turn_to_bin(cur: int, target: int) -> Action:
+    return Action.TURN_LEFT if (target - cur) % N_HEADINGS <= N_HEADINGS // 2 else Action.TURN_RIGHT
 
 
 def after_action(motion: MotionState, action: Action) -> MotionState:

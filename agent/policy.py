@@ -262,7 +262,8 @@ class ModIINAgent:
         log.info("turned to and fro on the spot: frontier given up, %d rescans left", self._state.rescan.rescans_left)
 
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
-        action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion)
+        action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion,
+                                     self.config.policy.detour_after_turns)
         self._set(motion=motion)
         return action
 
