@@ -86,6 +86,8 @@ class PolicyConfig:
     # evidence below tau around it: a later detection there still counts
     soft_reject_potential: bool = True
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
+    # before that, drop the collision marks and count again, this many times per candidate (0: off)
+    unreachable_forgive: int = 0
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
     # when exploration is exhausted, go to the rejected candidate with the best evidence (highest

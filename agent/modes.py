@@ -70,6 +70,7 @@ class ApproachState:
     stall_steps: int = 0  # steps without getting 5 cm nearer
     unreachable_steps: int = 0  # consecutive steps without a plan to it
     region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
+    collisions_forgiven: int = 0  # times the collision marks were dropped before giving it up as unreachable
 
     def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> "ApproachState":
         """The state after a plan of ``distance_m`` to the candidate at ``candidate_xy_m``: a new
@@ -77,7 +78,7 @@ class ApproachState:
         resets the stall, anything else adds a stalled step."""
         a = replace(self, unreachable_steps=0)
         if a.target_xy_m is None or math.dist(a.target_xy_m, candidate_xy_m) > 0.5:
-            a = replace(a, target_xy_m=candidate_xy_m, best_distance_m=math.inf, stall_steps=0)
+            a = replace(a, target_xy_m=candidate_xy_m, best_distance_m=math.inf, stall_steps=0, collisions_forgiven=0)
         if distance_m < a.best_distance_m - 0.05:
             return replace(a, best_distance_m=distance_m, stall_steps=0)
         return replace(a, stall_steps=a.stall_steps + 1)

@@ -105,6 +105,7 @@ class ModIINAgent:
         self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
         self._goal_mask: Pending | None = None
+        self._side_step = False  # set by _safe: this step's action is part of a side-step
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -204,9 +205,12 @@ class ModIINAgent:
         broke = 0 < pc.oscillation_turns <= self._state.motion.alternating_turns
         if broke:
             self._break_oscillation()
+        self._side_step = False
         decision = self._decide(obs, candidates)
         if broke:
             decision = replace(decision, reason=f"turn-in-place livelock broken; {decision.reason}")
+        if self._side_step:
+            decision = replace(decision, reason=f"side-step out of turning to and fro; {decision.reason}")
         timings["planning"] = _ms(t)
 
         action = decision.action
@@ -262,9 +266,13 @@ class ModIINAgent:
         log.info("turned to and fro on the spot: frontier given up, %d rescans left", self._state.rescan.rescans_left)
 
     def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
+        before = self._state.motion.detour
         action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion,
                                      self.config.policy.detour_after_turns)
         self._set(motion=motion)
+        # a side-step under way, or its last action (the step forward from the cell it began on)
+        self._side_step = motion.detour is not None or (
+            before is not None and action == Action.MOVE_FORWARD and before[:2] == move_key(self.grid, pose)[:2])
         return action
 
     # --- localisation and candidates ---------------------------------------------------
@@ -318,7 +326,22 @@ class ModIINAgent:
         self.grid.blacklist_cells(cand.cells_ij, self.config.policy.reject_radius_m,
                                   layer="potential_blacklist" if soft else "blacklist")
         a = self._state.approach
-        self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0), verify=None)
+        self._set(approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0, collisions_forgiven=0),
+                  verify=None)
+
+    def _forgive_before_reject(self) -> bool:
+        """Before a candidate is given up as unreachable: drop the collision marks (as a rescan
+        does; ``policy.unreachable_forgive`` times per candidate) and try again. Each failed move
+        near an object leaves a band as wide as the robot, inflated on every side, so a few of them
+        can wall in a stop region the robot could reach (train-s1-0012-0: a TV scoring 121).
+        The motion memory still refuses the very moves that failed. True when marks were dropped."""
+        a = self._state.approach
+        if a.collisions_forgiven >= self.config.policy.unreachable_forgive or not self.grid.layers.collision.any():
+            return False
+        self.grid.forgive_collisions()
+        self._set(approach=replace(a, unreachable_steps=0, collisions_forgiven=a.collisions_forgiven + 1))
+        log.info("goal candidate unreachable: collision marks dropped before giving it up")
+        return True
 
     # --- the state machine -----------------------------------------------------------
 
@@ -421,7 +444,7 @@ class ModIINAgent:
             a = replace(a, unreachable_steps=a.unreachable_steps + 1)
             self._set(approach=a)
             if a.unreachable_steps >= pc.unreachable_goal_steps:
-                if self._give_up_view(cand):
+                if self._give_up_view(cand) or self._forgive_before_reject():
                     return self._approach(obs, cand, trusted)
                 self._reject(cand, robot_xy_m=(pose.x_m, pose.y_m), why=f"unreachable for {a.unreachable_steps} steps")
                 return None
@@ -525,6 +548,8 @@ class ModIINAgent:
             a = replace(a, unreachable_steps=a.unreachable_steps + 1)
             self._set(approach=a)
             if a.unreachable_steps >= pc.unreachable_goal_steps:
+                if self._forgive_before_reject():
+                    return self._verify_by_approach(obs, cand)
                 self._reject(cl, robot_xy_m=robot_xy, why=f"verify ring unreachable for {a.unreachable_steps} steps")
                 return None
             return Decision(Action.TURN_LEFT, Mode.VERIFY, "verify ring not reachable yet", target_kind="goal",

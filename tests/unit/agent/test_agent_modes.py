@@ -277,6 +277,7 @@ def test_the_turn_in_place_livelock_is_broken_and_the_run_ends():
     steps = run_decisions(oracle_agent(world), world, max_steps=300)
     assert len(steps) == 300 and steps[-1][0].action != Action.STOP
     assert _longest_to_and_fro(steps) >= 20
+    assert not any("side-step" in d.reason for d, _ in steps)  # policy.detour_after_turns is off by default
     # With it: after 8 turns to and fro the frontier is given up, each time spending a rescan; the
     # agent then ends exhausted (the goal room is out of reach) instead of spending the budget
     world = _kerb_world()
@@ -285,3 +286,31 @@ def test_the_turn_in_place_livelock_is_broken_and_the_run_ends():
     assert len(broken) >= 1
     assert steps[-1][0].mode == Mode.EXHAUSTED and len(steps) < 300
     assert _longest_to_and_fro(steps) < 2 * 8 + 2
+
+
+def test_the_side_step_gets_out_of_turning_to_and_fro():
+    # The kerb world's livelock (above) with policy.detour_after_turns: 4: after the 4th turn to
+    # and fro the agent turns to a free heading and steps forward once, without re-planning in
+    # between; the reason says so. (The goal room stays out of reach: the kerb spans the door.)
+    world = _kerb_world()
+    steps = run_decisions(oracle_agent(world, detour_after_turns=4), world, max_steps=300)
+    side = [k for k, (d, _) in enumerate(steps) if d.reason.startswith("side-step out of turning to and fro; ")]
+    assert len(side) >= 3
+    # each side-step is turns (all the same way) and then one forward move
+    runs, cur = [], [side[0]]
+    for k in side[1:]:
+        if k == cur[-1] + 1:
+            cur.append(k)
+        else:
+            runs.append(cur)
+            cur = [k]
+    runs.append(cur)
+    for run in runs:
+        actions = [steps[k][0].action for k in run]
+        assert actions[-1] == Action.MOVE_FORWARD or run[-1] == len(steps) - 1
+        assert len(set(actions[:-1])) <= 1 and Action.MOVE_FORWARD not in actions[:-1]
+        # it began after a run of 4 turns to and fro
+        before = [steps[k][0].action for k in range(run[0] - 4, run[0])]
+        assert set(before) == {Action.TURN_LEFT, Action.TURN_RIGHT}
+        assert all(a != b for a, b in zip(before, before[1:]))
+    assert _longest_to_and_fro(steps) < 20

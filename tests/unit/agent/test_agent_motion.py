@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -42,3 +43,56 @@ def test_the_run_of_alternating_turns_counts_to_and_fro_only():
         runs.append(m.alternating_turns)
     # a turn the same way starts a new run; a forward move ends it
     assert runs == [1, 2, 3, 1, 2, 0, 1]
+
+
+def _open_room_at(pose: Pose2D):
+    grid = GridMap()
+    grid.update(observation(room_walls(-3.0, -2.0, 3.0, 2.0), pose))
+    planner = FMMPlanner()
+    return grid, planner, planner.distance_field(grid, pose)
+
+
+def test_a_to_and_fro_run_ends_in_a_side_step_on_the_other_side():
+    from agent.motion import N_HEADINGS, detour_heading, heading_bin
+
+    pose = Pose2D(-2.0, -1.0, 0.0)
+    grid, planner, field = _open_room_at(pose)
+    i, j, h = move_key(grid, pose)
+    # the move ahead failed here, and so did the one 30 deg to the left (where the path bends)
+    motion = MotionState(blocked=frozenset({(i, j, h), (i, j, (h + 1) % N_HEADINGS)}), alternating_turns=4,
+                         last_action=Action.TURN_LEFT)
+    path = np.array([[-2.0 + 0.05 * k, -1.0] for k in range(40)], np.float32)  # straight ahead, 2 m
+    plan = Plan(Action.MOVE_FORWARD, (0, 0), tuple(path[-1]), 2.0, path)
+    # off, or before the N-th turn: the refusal turns towards the path as before
+    assert safe_action(plan, pose, field, grid, planner, motion)[0] == Action.TURN_LEFT
+    assert safe_action(plan, pose, field, grid, planner, motion, detour_after_turns=5)[0] == Action.TURN_LEFT
+    # on: the free heading whose step ends nearest the path 1 m ahead is 30 deg to the right
+    assert detour_heading(plan, pose, field, grid, planner, motion) == (h - 1) % N_HEADINGS
+    action, m = safe_action(plan, pose, field, grid, planner, motion, detour_after_turns=4)
+    assert action == Action.TURN_RIGHT and m.detour == (i, j, (h - 1) % N_HEADINGS)
+    # turned there, the plan asks to turn back; the detour steps forward instead, once
+    turned = Pose2D(pose.x_m, pose.y_m, -math.radians(30))
+    assert heading_bin(turned.yaw_rad) == m.detour[2]
+    back = Plan(Action.TURN_LEFT, (0, 0), tuple(path[-1]), 2.0, path)
+    action, m2 = safe_action(back, turned, field, grid, planner, m, detour_after_turns=4)
+    assert action == Action.MOVE_FORWARD and m2.detour is None
+    # from the next cell the plan rules again
+    moved = Pose2D(turned.x_m + 0.2165, turned.y_m - 0.125, turned.yaw_rad)
+    action, m3 = safe_action(back, moved, field, grid, planner, replace(m2, alternating_turns=0), detour_after_turns=4)
+    assert action == Action.TURN_LEFT and m3.detour is None
+
+
+def test_no_side_step_where_no_step_is_free_or_none_gets_nearer():
+    from agent.motion import N_HEADINGS, detour_heading
+
+    pose = Pose2D(-2.0, -1.0, 0.0)
+    grid, planner, field = _open_room_at(pose)
+    i, j, _ = move_key(grid, pose)
+    path = np.array([[-2.0 + 0.05 * k, -1.0] for k in range(40)], np.float32)
+    plan = Plan(Action.MOVE_FORWARD, (0, 0), tuple(path[-1]), 2.0, path)
+    # every step but the one straight back failed: stepping back gets no nearer the path ahead
+    back_bin = N_HEADINGS // 2
+    motion = MotionState(blocked=frozenset((i, j, b) for b in range(N_HEADINGS) if b != back_bin), alternating_turns=6)
+    assert detour_heading(plan, pose, field, grid, planner, motion) is None
+    action, m = safe_action(plan, pose, field, grid, planner, motion, detour_after_turns=4)
+    assert action in (Action.TURN_LEFT, Action.TURN_RIGHT) and m.detour is None
