@@ -314,3 +314,45 @@ def test_the_side_step_gets_out_of_turning_to_and_fro():
         assert set(before) == {Action.TURN_LEFT, Action.TURN_RIGHT}
         assert all(a != b for a, b in zip(before, before[1:]))
     assert _longest_to_and_fro(steps) < 20
+
+
+def _walled_in_run(**policy):
+    """two_rooms from inside room B: the goal is seen at the first step. Then a ring of collision
+    marks 1.6 m around the candidate (as failed moves near an object leave, train-s1-0012-0)
+    walls in every spot within the stop radius; the marks are guesses, the space is free."""
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    agent = oracle_agent(world, **policy)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    out = []
+    for _ in range(300):
+        action = agent.act(obs)
+        d = agent.last_decision
+        if not out:
+            assert d.mode == Mode.APPROACH and d.candidate is not None
+            cx, cy = d.candidate.centroid_xy_m
+            for k in range(32):
+                t = 2 * math.pi * k / 32
+                agent.grid.mark_collision(Pose2D(cx + 1.6 * math.cos(t), cy + 1.6 * math.sin(t), t + math.pi))
+        out.append((d, agent.last_record))
+        world.apply(action)
+        if action == Action.STOP:
+            break
+        obs = world.observe()
+    return world, out
+
+
+def test_collision_marks_are_dropped_before_a_candidate_is_given_up_as_unreachable():
+    # Off (the default): after 10 steps without a plan the true goal is rejected, and the run
+    # ends exhausted far from it
+    world, steps = _walled_in_run()
+    last, rec = steps[-1]
+    assert [(c.state, c.why) for c in rec.candidates] == [("rejected", "unreachable for 10 steps")]
+    assert last.mode == Mode.EXHAUSTED and world.distance_to_goal() > 1.0
+    # policy.unreachable_forgive: 1: the marks are dropped once instead, and the agent stops at it
+    world, steps = _walled_in_run(unreachable_forgive=1)
+    last, rec = steps[-1]
+    assert [c.state for c in rec.candidates] == ["confirmed"]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert any(d.reason == "goal not reachable yet" for d, _ in steps)  # it was walled in first
