@@ -26,6 +26,14 @@ checks only in the last ``deadline_window_steps`` of the budget, so it cannot ac
 ``--oscillation N`` splices the turn-in-place guard (``policy.oscillation_turns: N``) instead: it
 acts only after N alternating turns in a row, so the base episodes without such a run are
 untouched, and a re-run must repeat its base up to the action that completed the run.
+
+``--rejected`` splices a change that acts only in place of a candidate's rejection
+(``policy.unreachable_forgive``): the base episodes that rejected no candidate are untouched, and
+a re-run must repeat its base up to the first step with any re-identification score (no candidate
+exists before it).
+
+``--list`` prints the base episodes where the change acts (the ids to re-run with
+``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
 """
 
 from __future__ import annotations
@@ -55,6 +63,7 @@ class ActsAt:
     oscillation: int | None = None
     hidden_stop: bool = False
     from_step: int | None = None
+    rejected: bool = False
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -66,6 +75,8 @@ class ActsAt:
             return None if k is None else k + 1
         if self.hidden_stop:
             return max(len(actions) - 1, 0) if stopped_hidden(rec) else None
+        if self.rejected:
+            return first_score_step(rec) if rejected_any(rec) else None
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -77,6 +88,8 @@ class ActsAt:
             return f"the base never turned to and fro {self.oscillation} times in a row"
         if self.hidden_stop:
             return "the base's stop did not find the goal hidden"
+        if self.rejected:
+            return "the base rejected no candidate"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
 
 
@@ -86,6 +99,18 @@ def stopped_hidden(rec: dict[str, Any]) -> bool:
     it runs only when the agent is about to STOP, and the agent stops once."""
     m = rec.get("modiin") or {}
     return m.get("final_mode") == "stopped" and ", hidden)" in str(m.get("final_reason") or "")
+
+
+def rejected_any(rec: dict[str, Any]) -> bool:
+    """Whether the base episode's record lists a rejected goal candidate."""
+    return any(c.get("state") == "rejected" for c in (rec.get("modiin") or {}).get("candidates") or [])
+
+
+def first_score_step(rec: dict[str, Any]) -> int:
+    """The first step whose re-identification score was above zero (the record's per-step trace):
+    no goal candidate, so no rejection, can exist before it. 0 when the trace is missing."""
+    scores = ((rec.get("modiin") or {}).get("trace") or {}).get("reid_score") or []
+    return next((k for k, v in enumerate(scores) if v and v > 0), 0)
 
 
 def _turn(a: Any) -> int:
@@ -184,8 +209,9 @@ def summarize(records: list[dict[str, Any]], base: str, rerun: str) -> dict[str,
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("base", help="imgnav eval output directory of the base variant")
-    p.add_argument("rerun", help="imgnav eval output directory of the re-run episodes (the changed variant)")
-    p.add_argument("--out", required=True)
+    p.add_argument("rerun", nargs="?", help="imgnav eval output directory of the re-run episodes (the changed variant)")
+    p.add_argument("--out")
+    p.add_argument("--list", action="store_true", help="print the base episodes where the change acts and stop")
     p.add_argument("--ended-in", default="exhausted", help="the base episodes' final mode from which the change acts")
     p.add_argument("--oscillation", type=int, default=None, metavar="N",
                    help="instead: the change acts after the base's first N alternating turns on the spot")
@@ -195,15 +221,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--from-step", type=int, default=None, metavar="N",
                    help="instead: the change can act only from step N on, in base episodes longer than N steps "
                         "(the last resort at the deadline: step_budget - deadline_window_steps, 800)")
+    p.add_argument("--rejected", action="store_true",
+                   help="instead: the change acts only where the base rejected a goal candidate "
+                        "(policy.unreachable_forgive)")
     args = p.parse_args(argv)
     if args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
     elif args.hidden_stop:
         acts_at = ActsAt(hidden_stop=True)
+    elif args.rejected:
+        acts_at = ActsAt(rejected=True)
     elif args.oscillation:
         acts_at = ActsAt(oscillation=args.oscillation)
     else:
         acts_at = ActsAt(ended_in=args.ended_in)
+    if args.list:
+        ids = missing_reruns(read_records(Path(args.base)), [], acts_at)
+        print(" ".join(ids))
+        return 0
+    if args.rerun is None or args.out is None:
+        p.error("RERUN and --out are required (or --list)")
     base, rerun = read_records(Path(args.base)), read_records(Path(args.rerun))
     missing = missing_reruns(base, rerun, acts_at)
     if missing:

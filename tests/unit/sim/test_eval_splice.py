@@ -144,3 +144,30 @@ def test_the_deadline_splices_the_episodes_that_went_past_its_first_step(tmp_pat
     assert main([str(tmp_path / "base"), str(tmp_path / "rerun"), "--out", str(tmp_path / "out"), "--from-step", "3"]) == 0
     got = [json.loads(x) for x in (tmp_path / "out" / "episodes.jsonl").read_text().splitlines()]
     assert [r["success"] for r in got] == [True, True]
+
+
+def test_forgiving_splices_only_where_the_base_rejected_a_candidate(tmp_path, capsys):
+    from sim.evaluation.splice import ActsAt
+
+    gave_up = rec("g", [L, L, F, L, S], "exhausted")
+    gave_up["modiin"].update(candidates=[{"id": 0, "state": "rejected"}], trace={"reid_score": [0.0, 0.0, 3.5, 60.0, 0.0]})
+    kept = rec("k", [F, F, S], "stopped", success=True, home=2)
+    kept["modiin"].update(candidates=[{"id": 0, "state": "confirmed"}], trace={"reid_score": [80.0, 90.0, 95.0]})
+    at = ActsAt(rejected=True)
+    # no candidate before the first step with a score: the re-run must repeat the first 2 actions
+    assert at.untouched(gave_up) == 2 and at.untouched(kept) is None
+    out = splice([gave_up, kept], [rec("g", [L, L, F, F, S], "stopped", success=True)], at)
+    assert out[0]["success"] and out[1] is kept
+    with pytest.raises(ValueError, match="actions differ at step 1"):
+        splice([gave_up, kept], [rec("g", [L, F, F, S], "stopped")], at)
+    with pytest.raises(ValueError, match="rejected no candidate"):
+        splice([gave_up, kept], [rec("k", [F, F, F, S], "stopped", home=2)], at)
+    # --list names the episodes to re-run, for each kind of change
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (gave_up, kept, *BASE)))
+    assert main([str(tmp_path / "base"), "--list", "--rejected"]) == 0
+    assert capsys.readouterr().out.split() == ["g"]
+    assert main([str(tmp_path / "base"), "--list"]) == 0  # the last resort: the exhausted ones
+    assert capsys.readouterr().out.split() == ["g", "e0"]
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "base"), "--rejected"])  # splicing needs RERUN and --out
