@@ -55,10 +55,13 @@ class GoalCandidate:
         return max((v.score for v in self.views if v.distance_m <= distance_m), default=0.0)
 
 
-def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float, verify_range_m: float | None) -> GoalCandidate:
-    """The candidate's state from its views. ``verify_range_m`` None: any detection confirms."""
+def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float, verify_range_m: float | None,
+             confirmed_steps: frozenset[int] = frozenset()) -> GoalCandidate:
+    """The candidate's state from its views. ``verify_range_m`` None: any detection confirms.
+    ``confirmed_steps``: views that confirm whatever their score (looks from the verify ring)."""
     views = tuple(v for v in (localiser.view(f) for f in cluster.frames) if v is not None)
-    confirming = [v for v in views if v.score >= tau and (verify_range_m is None or v.distance_m <= verify_range_m)]
+    confirming = [v for v in views if v.step in confirmed_steps
+                  or v.score >= tau and (verify_range_m is None or v.distance_m <= verify_range_m)]
     state = CandidateState.CONFIRMED if confirming else CandidateState.POTENTIAL
     return GoalCandidate(cluster, state, views)
 

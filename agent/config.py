@@ -51,6 +51,10 @@ class PolicyConfig:
     # ((camera height - top of its points) / tan(half vertical FOV)), plus this margin
     verify_min_margin_m: float = 0.3
     verify_views: int = 8  # steps looking at a potential candidate from the ring before rejecting it
+    # a look from the verify ring, facing the candidate, that scores at least this share of tau
+    # and adds points to it confirms it (1.0: only a detection does). From 1-2 m true goals
+    # reach tau/2 in most frames and frames without them seldom do (docs/evidence/evidence.md)
+    verify_ring_tau_ratio: float = 1.0
     # where to stop: "radius" = within stop_radius_m of the nearest goal cell (the paper);
     # "core" = within stop_radius_m of the candidate's core cells (robust to stray points), and
     # closer than stop_radius_m of the nearest one

@@ -130,6 +130,7 @@ class PolicyState:
     rescan: RescanState = field(default_factory=RescanState)
     motion: MotionState = field(default_factory=MotionState)
     confirmed_xy_m: tuple[tuple[float, float], ...] = ()  # centres of close-range detections
+    ring_confirmed: frozenset[int] = frozenset()  # steps whose look from the verify ring confirmed a candidate
     # (candidate id, x, y) of stop spots from which the candidate was hidden (``stop_needs_view``)
     hidden_spots: tuple[tuple[int, float, float], ...] = ()
     # (candidate id, x, y) of what hid it there (points of the depth frame): blocks its line of sight

@@ -294,7 +294,8 @@ class ModIINAgent:
         pc = self.config.policy
         tau = self.tau if self.tau is not None else 0.5  # the oracle's score is 1 or 0
         by_approach = pc.verify and pc.verify_by == "approach"
-        return [evaluate(c, self.localiser, tau, pc.verify_range_m if by_approach else None) for c in clusters]
+        return [evaluate(c, self.localiser, tau, pc.verify_range_m if by_approach else None, self._state.ring_confirmed)
+                for c in clusters]
 
     def _pick(self, candidates: list[GoalCandidate]) -> GoalCandidate | None:
         """Confirmed candidates first; among them (or among the potential ones when none is
@@ -524,6 +525,13 @@ class ModIINAgent:
                 self._set(verify=v)
                 return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.VERIFY,
                                 "verify: turning to look at the potential candidate", target_kind="goal", candidate=cl)
+            look = next((w for w in cand.views if w.step == obs.step), None)
+            if (pc.verify_ring_tau_ratio < 1.0 and self.tau is not None and look is not None
+                    and look.score >= pc.verify_ring_tau_ratio * self.tau):
+                self._set(ring_confirmed=self._state.ring_confirmed | {obs.step}, verify=None)
+                decision = self._approach(obs, cl)
+                return None if decision is None else replace(
+                    decision, reason=f"re-identified from the verify ring (score {look.score:.0f}); {decision.reason}")
             if v.views >= pc.verify_views:
                 self._reject(cl, robot_xy_m=robot_xy, why=f"not re-identified in {v.views} looks from the verify ring")
                 return None

@@ -32,6 +32,12 @@ untouched, and a re-run must repeat its base up to the action that completed the
 a re-run must repeat its base up to the first step with any re-identification score (no candidate
 exists before it).
 
+``--in-mode MODE`` splices a change that acts only in one mode of the policy (a look from the
+verify ring: ``--in-mode verify``, ``policy.verify_ring_tau_ratio``): the base episodes that spent
+no step in that mode (the record's ``modes`` count) are untouched, and a re-run must repeat its
+base up to the first step with any re-identification score (no candidate, so no verification,
+exists before it).
+
 ``--list`` prints the base episodes where the change acts (the ids to re-run with
 ``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
 """
@@ -64,6 +70,7 @@ class ActsAt:
     hidden_stop: bool = False
     from_step: int | None = None
     rejected: bool = False
+    in_mode: str | None = None
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -77,6 +84,8 @@ class ActsAt:
             return max(len(actions) - 1, 0) if stopped_hidden(rec) else None
         if self.rejected:
             return first_score_step(rec) if rejected_any(rec) else None
+        if self.in_mode is not None:
+            return first_score_step(rec) if ((rec.get("modiin") or {}).get("modes") or {}).get(self.in_mode) else None
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -90,6 +99,8 @@ class ActsAt:
             return "the base's stop did not find the goal hidden"
         if self.rejected:
             return "the base rejected no candidate"
+        if self.in_mode is not None:
+            return f"the base spent no step in mode {self.in_mode!r}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
 
 
@@ -224,6 +235,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--rejected", action="store_true",
                    help="instead: the change acts only where the base rejected a goal candidate "
                         "(policy.unreachable_forgive)")
+    p.add_argument("--in-mode", default=None, metavar="MODE",
+                   help="instead: the change acts only where the base spent a step in MODE "
+                        "(a look from the verify ring, policy.verify_ring_tau_ratio: verify)")
     args = p.parse_args(argv)
     if args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
@@ -231,6 +245,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         acts_at = ActsAt(hidden_stop=True)
     elif args.rejected:
         acts_at = ActsAt(rejected=True)
+    elif args.in_mode:
+        acts_at = ActsAt(in_mode=args.in_mode)
     elif args.oscillation:
         acts_at = ActsAt(oscillation=args.oscillation)
     else:

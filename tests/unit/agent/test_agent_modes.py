@@ -356,3 +356,70 @@ def test_collision_marks_are_dropped_before_a_candidate_is_given_up_as_unreachab
     assert [c.state for c in rec.candidates] == ["confirmed"]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert any(d.reason == "goal not reachable yet" for d, _ in steps)  # it was walled in first
+
+
+def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
+    """The matcher's scores scripted (tau 100): the goal scores ``goal_score(distance)`` where it is
+    in view, the decoy ``decoy_score(distance)``; localisation from the true masks."""
+    from agent.reid.base import Matches
+    from agent.reid.identifier import ReIDConfig, ReIDResult
+    from test_agent_policy import NoMatcher
+
+    pol = dict(reid_source="matcher", localisation_source="oracle", potential_tau_ratio=0.5, verify=False)
+    pol.update(policy)
+    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=100.0), policy=PolicyConfig(**pol)), matcher=NoMatcher(),
+                        oracle_ego_mask=lambda obs: world.goal_mask(obs) if world.goal_visible(obs) else world._ids == decoy)
+    x0, y0, x1, y1, _ = world.boxes[decoy]
+
+    def compare(rgb, use_gate=True):
+        if world.goal_visible(None):
+            score = goal_score(world.distance_to_goal())
+        elif np.count_nonzero(world._ids == decoy) >= 20:
+            d = math.hypot(world.pose.x_m - min(max(world.pose.x_m, x0), x1), world.pose.y_m - min(max(world.pose.y_m, y0), y1))
+            score = decoy_score(d)
+        else:
+            score = 0.0
+        empty = np.zeros((0, 2), np.float32)
+        return ReIDResult(score, Matches.empty(), empty, empty, 0.0, 0.0)
+
+    agent.reid.compare = compare
+    return agent
+
+
+def test_a_look_from_the_verify_ring_at_half_tau_confirms_the_candidate():
+    """The goal only ever scores 60 (tau/2 <= 60 < tau): a potential candidate. A look from the
+    verify ring at tau/2 confirms it; without the switch the looks reject it."""
+    boxes, goal, decoy = two_rooms()
+
+    def run_with(ratio):
+        world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+        agent = _scored_agent(world, decoy, lambda d: 60.0, lambda d: 0.0, verify_ring_tau_ratio=ratio)
+        return run_decisions(agent, world, max_steps=400), world
+
+    steps, world = run_with(0.5)
+    confirmed = [d for d, _ in steps if d.reason.startswith("re-identified from the verify ring (score 60)")]
+    assert len(confirmed) == 1 and confirmed[0].mode == Mode.APPROACH
+    # it was potential up to that look, confirmed from then on, and the robot stops at it
+    first = next(i for i, (d, _) in enumerate(steps) if d is confirmed[0])
+    assert any(c.state == "potential" for c in steps[first - 1][1].candidates)
+    assert not any(d.reason.startswith("verify: look") for d, _ in steps[first:])
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert [c.state for c in rec.candidates if c.id == rec.candidate_id] == ["confirmed"]
+
+    steps, _ = run_with(1.0)
+    assert not any(d.reason.startswith("re-identified from the verify ring") for d, _ in steps)
+    assert any(c.why == "not re-identified in 8 looks from the verify ring" for _, r in steps for c in r.candidates)
+
+
+def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
+    """The decoy scores 60 from afar but 10 from within 2.6 m; the goal scores 200 (a detection)."""
+    boxes, goal, decoy = two_rooms()
+    world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
+    agent = _scored_agent(world, decoy, lambda d: 200.0, lambda d: 60.0 if d > 2.6 else 10.0, verify_ring_tau_ratio=0.5)
+    steps = run_decisions(agent, world, max_steps=600)
+    assert any(d.mode == Mode.VERIFY for d, _ in steps)
+    assert not any(d.reason.startswith("re-identified from the verify ring") for d, _ in steps)
+    last, rec = steps[-1]
+    assert any(c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates)
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0

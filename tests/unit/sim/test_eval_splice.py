@@ -171,3 +171,25 @@ def test_forgiving_splices_only_where_the_base_rejected_a_candidate(tmp_path, ca
     assert capsys.readouterr().out.split() == ["g", "e0"]
     with pytest.raises(SystemExit):
         main([str(tmp_path / "base"), "--rejected"])  # splicing needs RERUN and --out
+
+
+def test_a_change_in_one_mode_splices_only_where_the_base_spent_a_step_in_it(tmp_path, capsys):
+    from sim.evaluation.splice import ActsAt
+
+    verified = rec("v", [L, L, F, L, S], "stopped")
+    verified["modiin"].update(modes={"look_around": 2, "verify": 2, "stopped": 1},
+                              trace={"reid_score": [0.0, 0.0, 0.0, 45.0, 0.0]})
+    direct = rec("d", [F, F, S], "stopped", success=True, home=2)
+    direct["modiin"].update(modes={"approach": 2, "stopped": 1}, trace={"reid_score": [90.0, 90.0, 95.0]})
+    at = ActsAt(in_mode="verify")
+    assert at.untouched(verified) == 3 and at.untouched(direct) is None
+    out = splice([verified, direct], [rec("v", [L, L, F, F, S], "stopped", success=True)], at)
+    assert out[0]["success"] and out[1] is direct
+    with pytest.raises(ValueError, match="actions differ at step 2"):
+        splice([verified, direct], [rec("v", [L, L, L, F, S], "stopped")], at)
+    with pytest.raises(ValueError, match="no step in mode 'verify'"):
+        splice([verified, direct], [rec("d", [F, F, F, S], "stopped", home=2)], at)
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (verified, direct)))
+    assert main([str(tmp_path / "base"), "--list", "--in-mode", "verify"]) == 0
+    assert capsys.readouterr().out.split() == ["v"]
