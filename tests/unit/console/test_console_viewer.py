@@ -10,7 +10,8 @@ import pytest
 
 from agent.types import Action, Pose2D
 from console.session import Outcome, StepRecord
-from console.viewer import Viewer, ViewerConfig, camera_rotation, rotation_to_wxyz
+from console.scene_geometry import camera_rotation, rotation_to_wxyz
+from console.viewer import Viewer, ViewerConfig
 from console_testkit import ScriptedAgent, ScriptedBackend, poll, textured_rgb
 
 
