@@ -44,7 +44,7 @@ class CandidateNavigation:
     memory: CandidateMemory
     tau: float | None
     _state: PolicyState
-    _rejected_now: bool
+    _candidates_changed: bool
     _set: Callable[..., None]  # replaces fields of the policy state
     _safe: Callable[[Plan, Pose2D, DistanceField], Action]  # the plan's first action, made safe
 
@@ -61,7 +61,7 @@ class CandidateNavigation:
     def _reject(self, cand: Candidate, why: str, robot_xy_m: tuple[float, float]) -> None:
         log.info("rejecting goal candidate at %s (%s)", cand.centroid_xy_m, why)
         self.memory.reject(cand, robot_xy_m, self.grid.ij_to_xy(cand.cells_ij), why)
-        self._rejected_now = True
+        self._candidates_changed = True
         # A candidate that never scored tau was only potential: reject its sub-tau evidence, not
         # a later detection there (a rejected true goal would otherwise be lost for good)
         soft = self.config.policy.soft_reject_potential and self.tau is not None and cand.max_score < self.tau

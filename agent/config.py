@@ -122,6 +122,16 @@ class PolicyConfig:
     # ends nearest the path 1 m ahead, turning to it first without re-planning (0: off).
     detour_after_turns: int = 0
     snapshot_every: int = 1  # map snapshot in the record every n steps (0: never)
+    # The second look when exploration is exhausted: with nothing left to explore and no goal
+    # candidate at all (none live, none rejected for the last resort), the agent would stop where
+    # it stands, a failure unless it happens to stand at the goal. The goal is in the home, so it
+    # was probably among the frames already seen, scored low by the matcher (or dropped by the
+    # gate). The searching frames with the most mutual-nearest descriptor pairs with the goal (the
+    # gate's first-stage count; the re-ID score when the gate is off) are kept, this many of them
+    # (0: off); at that point each is scored again with the full matcher and its matches are
+    # localised whatever the score, as potential evidence, verified by approach like any other
+    # (and, rejected, left to the last resort). Once per run; matcher localisation only.
+    exhausted_recheck_frames: int = 0
 
 
 @dataclass(frozen=True, slots=True)

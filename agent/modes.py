@@ -138,6 +138,7 @@ class PolicyState:
     # candidates for which no spot in view could be reached: they are stopped at where the robot can
     view_given_up: frozenset[int] = frozenset()
     last_resort: "LastResortState" = field(default_factory=lambda: LastResortState())
+    rechecked: bool = False  # the second look at the best frames when exhausted was taken
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,11 @@ Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
   hid them blocks the candidate's line of sight, and the approach goes on;
 * exploration by information gain (``frontier.gain_weight_m``);
 * the last resort (``last_resort``): when nothing is left to explore, head for the rejected
-  candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place.
+  candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place;
+* the second look (``exhausted_recheck_frames``): when nothing is left to explore and there is no
+  candidate at all, the searching frames with the most descriptor pairs with the goal (kept in
+  ``agent.shortlist``) are scored again with the full matcher and their matches localised as
+  potential evidence, verified by approach like any other.
 
 Going to a candidate, verifying it, giving it up and the last resort live in
 ``agent.approach`` (mixed in). Rejected and unreachable candidates are blacklisted on the map (``GridMap.blacklist_cells``),
@@ -64,6 +68,7 @@ from agent.planner import DistanceField, FMMPlanner, Plan, PlanError
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
 from agent.segmentation import GoalMaskFn, GoalSegmenter
+from agent.shortlist import FrameShortlist
 from agent.types import Action, AgentRecord, Observation, Pose2D
 
 log = logging.getLogger(__name__)
@@ -128,6 +133,7 @@ class ModIINAgent(CandidateNavigation):
         self.explorer = FrontierExplorer(self.config.frontier)
         self.localiser = GoalLocaliser(self.config.localisation)
         self.memory = CandidateMemory()
+        self.shortlist = FrameShortlist(self.config.policy.exhausted_recheck_frames)
         if self.reid is not None:
             self.reid.set_goal(goal_image)
         # The goal-image mask is needed only at the first detection (localisation), not for
@@ -191,6 +197,9 @@ class ModIINAgent(CandidateNavigation):
                      and self.tau is not None and score >= pc.potential_tau_ratio * self.tau)
         if potential:
             self._localise(obs, result, score)
+        elif searching and not detected and result is not None and pc.reid_source == "matcher":
+            # kept for a second look should exploration end with nothing (``agent.shortlist``)
+            self.shortlist.offer(obs, result.gate_score if result.gate_score is not None else score)
         if detected:
             added = self._localise(obs, result, score)
             if len(added):
@@ -202,7 +211,7 @@ class ModIINAgent(CandidateNavigation):
 
         # 4. decision and planning
         t = time.perf_counter()
-        self._rejected_now = False
+        self._candidates_changed = False
         broke = 0 < pc.oscillation_turns <= self._state.motion.alternating_turns
         if broke:
             self._break_oscillation()
@@ -225,7 +234,7 @@ class ModIINAgent(CandidateNavigation):
         plan, cand = decision.plan, decision.candidate
         robot_xy = (obs.pose.x_m, obs.pose.y_m)
         # the candidates as they stand after the decision (a rejection changes them)
-        live = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if self._rejected_now else candidates
+        live = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if self._candidates_changed else candidates
         self._record = AgentRecord(
             step=obs.step,
             action=action,
@@ -387,9 +396,41 @@ class ModIINAgent(CandidateNavigation):
             decision = self._last_resort(obs)
             if decision is not None:
                 return decision
+        decision = self._recheck(obs)
+        if decision is not None:
+            return decision
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
         return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
                         planner_error=error or "no_frontier")
+
+    def _recheck(self, obs: Observation) -> Decision | None:
+        """The second look when exhausted (``policy.exhausted_recheck_frames``): score the kept
+        frames again with the full matcher, localise their matches whatever the score, and decide
+        on the candidates they form (None: no candidate came of it, or already done)."""
+        pc = self.config.policy
+        if (self._state.rechecked or len(self.shortlist) == 0 or self.reid is None
+                or pc.reid_source != "matcher" or pc.localisation_source != "goal_mask"):
+            return None
+        self._set(rechecked=True)
+        self._candidates_changed = True  # the candidates change during this decision: the record re-reads them
+        frames = self.shortlist.take()
+        scores = []
+        for _, kept in frames:
+            if self.localiser.view(kept.step) is not None:
+                continue
+            res = self.reid.compare(kept.rgb, use_gate=False)
+            if res.score > 0 and len(self._localise(kept, res, res.score)):
+                scores.append(res.score)
+        found = f"{len(scores)} of the {len(frames)} frames kept added points" + (
+            f" (best score {max(scores):.1f})" if scores else "")
+        log.info("exploration exhausted with no candidate: second look, %s", found)
+        cands = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if scores else []
+        if not cands:
+            return None
+        decision = self._decide(obs, cands)
+        if decision.mode == Mode.EXHAUSTED:
+            return None
+        return replace(decision, reason=f"exhausted, second look with the full matcher: {found}; {decision.reason}")
 
 
 def _ms(t0: float) -> float:

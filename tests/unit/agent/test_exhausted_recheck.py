@@ -1,0 +1,153 @@
+"""The second look when exploration is exhausted (policy.exhausted_recheck_frames, agent/shortlist.py)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from agent.config import AgentConfig, PolicyConfig
+from agent.modes import Mode
+from agent.policy import ModIINAgent
+from agent.reid.base import Matches
+from agent.reid.identifier import ReIDConfig, ReIDResult
+from agent.segmentation import SegmentationConfig
+from agent.shortlist import FrameShortlist
+from agent.types import Pose2D
+from agent_scenes import SMALL_INTRINSICS, BoxWorld, observation
+from test_agent_modes import run_decisions
+from test_agent_policy import NoMatcher, two_rooms
+
+GOAL_RGB = (255, 0, 0)
+DECOY_RGB = (0, 255, 0)
+
+
+def _obs(x, y, yaw_deg, step, value=0):
+    rgb = np.full((SMALL_INTRINSICS.height_px, SMALL_INTRINSICS.width_px, 3), value, np.uint8)
+    return observation([], Pose2D(x, y, math.radians(yaw_deg)), rgb=rgb, step=step)
+
+
+def test_the_shortlist_keeps_the_best_frames_one_per_pose_best_first():
+    s = FrameShortlist(3)
+    assert s.offer(_obs(0, 0, 0, 0), 5.0)
+    assert s.offer(_obs(1, 0, 0, 1), 9.0)
+    assert s.offer(_obs(2, 0, 0, 2), 1.0)
+    assert not s.offer(_obs(3, 0, 0, 3), 0.5)  # below the worst of a full list
+    assert s.offer(_obs(4, 0, 0, 4), 7.0)  # pushes out the 1.0
+    # the same pose again (a rescan turning on the spot): the better frame stays
+    assert not s.offer(_obs(1.01, 0, 1, 5), 8.0)
+    assert s.offer(_obs(0, 0, 0, 6), 6.0)  # replaces step 0 (5.0) at its pose
+    assert len(s) == 3
+    taken = s.take()
+    assert [(r, o.step) for r, o in taken] == [(9.0, 1), (7.0, 4), (6.0, 6)]
+    assert len(s) == 0 and s.take() == []
+
+
+def test_the_shortlist_copies_the_frames_and_can_be_off():
+    o = _obs(0, 0, 0, 0, value=7)
+    s = FrameShortlist(2)
+    s.offer(o, 1.0)
+    o.rgb[:] = 99  # a backend reusing its buffer
+    o.depth_m[:] = 0.0
+    (_, kept), = s.take()
+    assert int(kept.rgb.max()) == 7 and float(kept.depth_m.max()) > 0.0
+    off = FrameShortlist(0)
+    assert not off.offer(o, 100.0) and len(off) == 0
+    with pytest.raises(ValueError):
+        FrameShortlist(-1)
+
+
+class PaintedWorld(BoxWorld):
+    """BoxWorld whose frames show the goal in red and the decoy in green, so that a frame scored
+    later (from the shortlist) carries what it saw."""
+
+    def __init__(self, *a, decoy: int, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.decoy = decoy
+
+    def observe(self):
+        obs = super().observe()
+        obs.rgb[self._ids == self.goal_box] = GOAL_RGB
+        obs.rgb[self._ids == self.decoy] = DECOY_RGB
+        return obs
+
+
+def _painted_agent(world, goal_score, **policy):
+    """tau 100, potential at tau/2. The scripted matcher reads the frame: where the goal's pixels
+    show it scores ``goal_score()``, where the decoy's show 5. The gate's count (the shortlist's
+    rank) is the number of such pixels, the decoy's counting half. Matches sit on the painted
+    pixels; localisation lifts them (the goal image's mask is all of it)."""
+    pol = dict(reid_source="matcher", localisation_source="goal_mask", potential_tau_ratio=0.5, verify=True,
+               verify_by="approach", verify_ring_tau_ratio=0.5, last_resort=True)
+    pol.update(policy)
+    cfg = AgentConfig(reid=ReIDConfig(tau=100.0), policy=PolicyConfig(**pol),
+                      segmentation=SegmentationConfig(source="oracle"))
+    agent = ModIINAgent(cfg, matcher=NoMatcher(), goal_mask_fn=lambda img: np.ones(img.shape[:2], bool))
+    ungated = []
+
+    def compare(rgb, use_gate=True):
+        goal = np.all(rgb == GOAL_RGB, axis=2)
+        decoy = np.all(rgb == DECOY_RGB, axis=2)
+        n_goal, n_decoy = int(goal.sum()), int(decoy.sum())
+        if n_goal >= 20:
+            score, px = goal_score(), np.argwhere(goal)[:, ::-1].astype(np.float32)
+        elif n_decoy >= 20:
+            score, px = 5.0, np.argwhere(decoy)[:, ::-1].astype(np.float32)
+        else:
+            score, px = 0.0, np.zeros((0, 2), np.float32)
+        if not use_gate:
+            ungated.append(score)
+        px = px[:: max(1, len(px) // 40)]
+        return ReIDResult(score, Matches.empty(), px.copy(), px, 0.0, 0.0, gate_score=float(n_goal + 0.5 * n_decoy))
+
+    agent.reid.compare = compare
+    return agent, ungated
+
+
+def test_exhausted_with_nothing_found_the_second_look_finds_the_goal_and_stops_there():
+    """The goal scores 20 wherever the robot sees it while exploring (never tau/2): exploration
+    ends with no candidate. Without the switch the robot stops where it stands; with it, the kept
+    frames are scored again with the full matcher, their matches form candidates (the goal's
+    first: it scores best), and the verify ring confirms the goal (60 from within 2.6 m)."""
+    boxes, goal, decoy = two_rooms()
+
+    def run_with(frames):
+        world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
+        second_look = {"taken": False}
+        # 20 wherever it is seen while exploring; after the second look, 60 from within 2.6 m
+        agent, ungated = _painted_agent(
+            world, lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
+            exhausted_recheck_frames=frames)
+        steps = []
+        obs = world.observe()
+        agent.reset(obs.goal_image)
+        for _ in range(900):
+            action = agent.act(obs)
+            d, rec = agent.last_decision, agent.last_record
+            steps.append((d, rec))
+            second_look["taken"] |= d.reason.startswith("exhausted, second look")
+            world.apply(action)
+            if d.mode in (Mode.STOPPED, Mode.EXHAUSTED):
+                break
+            obs = world.observe()
+        return steps, world, ungated
+
+    steps, world, ungated = run_with(0)
+    last, rec = steps[-1]
+    assert last.mode == Mode.EXHAUSTED and not rec.candidates
+    assert world.distance_to_goal() > 1.0
+    assert not any(d.reason.startswith("exhausted, second look") for d, _ in steps)
+
+    ungated.clear()
+    steps, world, ungated = run_with(8)
+    second = [d for d, _ in steps if d.reason.startswith("exhausted, second look with the full matcher")]
+    assert len(second) == 1
+    # the kept frames were scored once more, without the gate, and the goal's formed a candidate
+    assert "of the 8 frames kept added points (best score 20.0)" in second[0].reason
+    assert 20.0 in ungated[:8]
+    i = next(k for k, (d, _) in enumerate(steps) if d is second[0])
+    assert not any(s == "potential" for _, r in steps[:i] for s in (c.state for c in r.candidates))
+    assert any(c.state == "potential" for c in steps[i][1].candidates)
+    assert second[0].candidate is not None
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert any(d.reason.startswith("re-identified from the verify ring (score 60") for d, _ in steps[i:])
