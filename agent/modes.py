@@ -44,6 +44,11 @@ class Mode(str, enum.Enum):
         return self.value
 
 
+# how the decision that takes the second look when exhausted begins its reason
+# (``policy.exhausted_recheck_frames``; the evaluation records the step)
+SECOND_LOOK = "exhausted, second look with the full matcher"
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Decision:
     """What the policy decided this step and why (immutable; goes into the ``AgentRecord``).

@@ -63,7 +63,7 @@ from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
 from agent.motion import after_action, move_key, safe_action
 from agent.approach import CandidateNavigation
-from agent.modes import Decision, Mode, PolicyState, RescanState
+from agent.modes import SECOND_LOOK, Decision, Mode, PolicyState, RescanState
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.reid.base import Matcher
@@ -430,7 +430,7 @@ class ModIINAgent(CandidateNavigation):
         decision = self._decide(obs, cands)
         if decision.mode == Mode.EXHAUSTED:
             return None
-        return replace(decision, reason=f"exhausted, second look with the full matcher: {found}; {decision.reason}")
+        return replace(decision, reason=f"{SECOND_LOOK}: {found}; {decision.reason}")
 
 
 def _ms(t0: float) -> float:

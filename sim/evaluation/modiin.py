@@ -34,6 +34,7 @@ import numpy as np
 
 from agent.config import AgentConfig, agent_config_from_dict, load_agent_config
 from agent.configio import to_dict
+from agent.modes import SECOND_LOOK
 from agent.types import Action, AgentRecord, Observation
 from sim.evaluation.registry import AgentSpec, register
 
@@ -215,6 +216,7 @@ class Attribution:
         self.trace_goal_dist: list[float] = []  # robot centre to the goal's footprint, metres (distance-aware evidence)
         self.full_matcher_steps = 0  # steps on which the full matcher ran
         self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
+        self.second_look_step: int | None = None  # the step that took the second look when exhausted
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
@@ -234,6 +236,8 @@ class Attribution:
         self.gated_goal_in_view += bool(seen and record.reid_full_matcher is False)
         self.last = record
         self.modes[record.mode] += 1
+        if self.second_look_step is None and record.reason.startswith(SECOND_LOOK):
+            self.second_look_step = obs.step
         if record.planner_error:
             self.planner_errors += 1
         if record.goal_detected:
@@ -318,6 +322,7 @@ class Attribution:
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,
+                "second_look_step": self.second_look_step,
                 "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate,
                           "exit_score": self.trace_exit,
                           "goal_dist_m": self.trace_goal_dist},

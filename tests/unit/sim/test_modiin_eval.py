@@ -67,6 +67,7 @@ def attribution(steps):
     a.modes, a.timings = Counter(), {}
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
+    a.second_look_step = None
     obs = type("O", (), {"step": 0})()
     for k, (px, det, pts, *full) in enumerate(steps):
         a.oracle.px = px
@@ -101,6 +102,18 @@ def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
         {"success": False})["modiin"]
     assert out["full_matcher_steps"] == 1 and out["gated_goal_in_view_steps"] == 1
     assert out["trace"]["gate_score"] == [3.0, 90.0, 3.0] and out["trace"]["reid_score"] == [0.0, 100.0, 0.0]
+
+
+def test_attribution_records_the_step_of_the_second_look():
+    from agent.modes import SECOND_LOOK
+
+    a = attribution([(0, False, [])] * 3)
+    assert a.finish({"success": False})["modiin"]["second_look_step"] is None
+    for k in (3, 4):
+        rec = Rec(False, [], mode="verify")
+        rec.reason = f"{SECOND_LOOK}: 2 of the 16 frames kept added points; verify: going to the ring"
+        a.on_step(type("O", (), {"step": k})(), None, rec)
+    assert a.finish({"success": False})["modiin"]["second_look_step"] == 3
 
 
 def test_distribution_and_table():
