@@ -132,6 +132,10 @@ class PolicyConfig:
     # localised whatever the score, as potential evidence, verified by approach like any other
     # (and, rejected, left to the last resort). Once per run; matcher localisation only.
     exhausted_recheck_frames: int = 0
+    # ... of which only those scoring at least this share of the best re-scored frame are
+    # localised: the others (train: 1-5 against 15-50 for the goal's) form candidates whose
+    # verification can use up the budget before the last resort reaches the best one (0: all)
+    exhausted_recheck_min_share: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

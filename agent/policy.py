@@ -414,13 +414,11 @@ class ModIINAgent(CandidateNavigation):
         self._set(rechecked=True)
         self._candidates_changed = True  # the candidates change during this decision: the record re-reads them
         frames = self.shortlist.take()
-        scores = []
-        for _, kept in frames:
-            if self.localiser.view(kept.step) is not None:
-                continue
-            res = self.reid.compare(kept.rgb, use_gate=False)
-            if res.score > 0 and len(self._localise(kept, res, res.score)):
-                scores.append(res.score)
+        scored = [(kept, self.reid.compare(kept.rgb, use_gate=False)) for _, kept in frames
+                  if self.localiser.view(kept.step) is None]
+        floor = pc.exhausted_recheck_min_share * max((r.score for _, r in scored), default=0.0)
+        scores = [r.score for kept, r in scored
+                  if r.score > 0 and r.score >= floor and len(self._localise(kept, r, r.score))]
         found = f"{len(scores)} of the {len(frames)} frames kept added points" + (
             f" (best score {max(scores):.1f})" if scores else "")
         log.info("exploration exhausted with no candidate: second look, %s", found)

@@ -103,42 +103,43 @@ def _painted_agent(world, goal_score, **policy):
     return agent, ungated
 
 
+def run_exhausted(frames, **policy):
+    """The two-room world of the tests below: (decisions with records, world, ungated scores)."""
+    boxes, goal, decoy = two_rooms()
+    world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
+    second_look = {"taken": False}
+    # 20 wherever it is seen while exploring; after the second look, 60 from within 2.6 m
+    agent, ungated = _painted_agent(
+        world, lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
+        exhausted_recheck_frames=frames, **policy)
+    steps = []
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    for _ in range(900):
+        action = agent.act(obs)
+        d, rec = agent.last_decision, agent.last_record
+        steps.append((d, rec))
+        second_look["taken"] |= d.reason.startswith("exhausted, second look")
+        world.apply(action)
+        if d.mode in (Mode.STOPPED, Mode.EXHAUSTED):
+            break
+        obs = world.observe()
+    return steps, world, ungated
+
+
 def test_exhausted_with_nothing_found_the_second_look_finds_the_goal_and_stops_there():
     """The goal scores 20 wherever the robot sees it while exploring (never tau/2): exploration
     ends with no candidate. Without the switch the robot stops where it stands; with it, the kept
     frames are scored again with the full matcher, their matches form candidates (the goal's
     first: it scores best), and the verify ring confirms the goal (60 from within 2.6 m)."""
-    boxes, goal, decoy = two_rooms()
-
-    def run_with(frames):
-        world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
-        second_look = {"taken": False}
-        # 20 wherever it is seen while exploring; after the second look, 60 from within 2.6 m
-        agent, ungated = _painted_agent(
-            world, lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
-            exhausted_recheck_frames=frames)
-        steps = []
-        obs = world.observe()
-        agent.reset(obs.goal_image)
-        for _ in range(900):
-            action = agent.act(obs)
-            d, rec = agent.last_decision, agent.last_record
-            steps.append((d, rec))
-            second_look["taken"] |= d.reason.startswith("exhausted, second look")
-            world.apply(action)
-            if d.mode in (Mode.STOPPED, Mode.EXHAUSTED):
-                break
-            obs = world.observe()
-        return steps, world, ungated
-
-    steps, world, ungated = run_with(0)
+    steps, world, ungated = run_exhausted(0)
     last, rec = steps[-1]
     assert last.mode == Mode.EXHAUSTED and not rec.candidates
     assert world.distance_to_goal() > 1.0
     assert not any(d.reason.startswith("exhausted, second look") for d, _ in steps)
 
     ungated.clear()
-    steps, world, ungated = run_with(8)
+    steps, world, ungated = run_exhausted(8)
     second = [d for d, _ in steps if d.reason.startswith("exhausted, second look with the full matcher")]
     assert len(second) == 1
     # the kept frames were scored once more, without the gate, and the goal's formed a candidate
@@ -151,3 +152,18 @@ def test_exhausted_with_nothing_found_the_second_look_finds_the_goal_and_stops_t
     last, rec = steps[-1]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert any(d.reason.startswith("re-identified from the verify ring (score 60") for d, _ in steps[i:])
+
+
+def test_the_second_look_localises_only_frames_near_the_best_score():
+    """The decoy's frames score 5 when scored again, the goal's 20: with no floor the decoy forms
+    a candidate as well; with the floor at half the best score it does not."""
+    def candidate_scores(steps):
+        return {round(c.best_score, 1) for _, r in steps for c in r.candidates}
+
+    steps, world, _ = run_exhausted(8)
+    assert 5.0 in candidate_scores(steps)
+    steps, world, _ = run_exhausted(8, exhausted_recheck_min_share=0.5)
+    second = [d for d, _ in steps if d.reason.startswith("exhausted, second look")]
+    assert len(second) == 1 and "(best score 20.0)" in second[0].reason
+    assert 5.0 not in candidate_scores(steps) and 20.0 in candidate_scores(steps)
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
