@@ -175,6 +175,9 @@ def test_console_candidates_live_then_replay_in_page_and_viewer(browser, scripte
     try:
         page.goto(scripted_console.url + "/console")
         frame = page.wait_for_selector("#viewer-frame").content_frame()
+        # the page attaches its file listener only after /api/config answered (in the same task as
+        # filling the backend filter): a file set before that is lost (seen under load in CI)
+        page.wait_for_function("document.querySelector('#filter-backend option') !== null")
         page.set_input_files("#file-input", str(photo))
         page.wait_for_selector("#start:not([disabled])")
         page.click("#start")
