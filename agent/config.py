@@ -109,6 +109,11 @@ class PolicyConfig:
     deadline_window_steps: int = 200
     deadline_path_factor: float = 2.5  # train: a median 2.56 actions per forward move (40 episodes)
     deadline_margin_steps: int = 30
+    # ... and the deadline also comes before verifying a potential candidate whose best score is
+    # below the best rejected one's: with the budget nearly spent, the better evidence is the
+    # better bet (without it the last resort waits while any candidate is live, and a candidate
+    # scoring 1-5 can keep the robot verifying until the budget runs out)
+    deadline_over_weaker: bool = False
     collision_min_motion_m: float = 0.05  # a forward move shorter than this was a collision
     # The turn-in-place livelock: the plan points at a forward move that already failed from
     # here (refused by the motion memory), the refusal turns away, the plan turns back, for

@@ -31,6 +31,9 @@ Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
 * exploration by information gain (``frontier.gain_weight_m``);
 * the last resort (``last_resort``): when nothing is left to explore, head for the rejected
   candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place;
+* the deadline over a weaker candidate (``deadline_over_weaker``): at the deadline, the last
+  resort also comes before verifying a potential candidate whose evidence is below the best
+  rejected one's;
 * the second look (``exhausted_recheck_frames``): when nothing is left to explore and there is no
   candidate at all, the searching frames with the most descriptor pairs with the goal (kept in
   ``agent.shortlist``) are scored again with the full matcher and their matches localised as
@@ -325,6 +328,10 @@ class ModIINAgent(CandidateNavigation):
         if picked is None and self._state.steps < pc.look_around_turns:
             return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND,
                             f"initial look-around {self._state.steps + 1}/{pc.look_around_turns}")
+        if picked is not None and picked.state == CandidateState.POTENTIAL:
+            decision = self._deadline_over(obs, picked)
+            if decision is not None:
+                return decision
         if picked is not None:
             self.grid.set_goal_cells(picked.cluster.cells_ij)
             if picked.state == CandidateState.POTENTIAL:
@@ -345,6 +352,24 @@ class ModIINAgent(CandidateNavigation):
                 left = self.config.policy.step_budget - obs.step
                 return replace(decision, reason=f"{left} steps of the budget left: {decision.reason}")
         return self._explore(obs)
+
+    def _deadline_over(self, obs: Observation, picked: GoalCandidate) -> Decision | None:
+        """``policy.deadline_over_weaker``: the last resort at the deadline before verifying
+        ``picked`` (potential), when a rejected candidate left to try has better evidence."""
+        pc = self.config.policy
+        if not pc.deadline_over_weaker:
+            return None
+        lr = self._state.last_resort
+        cid = lr.candidate_id if lr.candidate_id is not None else self.memory.best_rejected(exclude=lr.tried)
+        if cid is None or self.memory.best_score_of(cid) <= picked.best_score or not self._deadline_due(obs):
+            return None
+        decision = self._last_resort(obs)
+        tried = self._state.last_resort.candidate_id
+        if decision is None or tried is None or self.memory.best_score_of(tried) <= picked.best_score:
+            return None  # the rejected ones left to try are no better (those better were unreachable)
+        left = pc.step_budget - obs.step
+        return replace(decision, reason=f"{left} steps of the budget left, potential candidate weaker "
+                                        f"(best score {picked.best_score:.1f}): {decision.reason}")
 
     def _explore(self, obs: Observation) -> Decision:
         """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end."""
