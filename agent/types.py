@@ -274,6 +274,8 @@ class AgentRecord:
     """A read-only account of one agent step: what it did and why.
 
     mode: e.g. ``look_around``, ``explore``, ``approach``, ``verify``, ``stopped``.
+    event: what happened, as a stable name (``agent.events.Event``); ``reason`` is written from it
+        for people, and nothing parses ``reason``.
     reid_score: score of this frame against the goal (None if re-ID did not run; 0 when the
         gate skipped the full matcher).
     reid_full_matcher: whether the full (learned) matcher ran on this frame (None: no re-ID).
@@ -295,6 +297,7 @@ class AgentRecord:
     pose: Pose2D
     mode: str
     reason: str
+    event: str | None = None  # the decision's event (``agent.events.Event`` value); reason is its prose
     reid_score: float | None = None
     reid_tau: float | None = None
     reid_full_matcher: bool | None = None
