@@ -27,7 +27,7 @@ from PIL import Image
 from console.pictures import render_map, video_frame
 from console.replay import ReplayRecorder
 from console.session import StepRecord
-from console.store import json_safe
+from console.jsonio import json_safe
 
 logger = logging.getLogger(__name__)
 

@@ -27,7 +27,6 @@ whether and how the run is scored.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 import traceback
@@ -41,11 +40,13 @@ import numpy as np
 from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
+from console.jsonio import json_safe
 from agent.loop import LoopError, LoopResult, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
-from console.store import RunStore, StepRow, step_dict
+from console.step_schema import StepRow
+from console.store import RunStore
 
 logger = logging.getLogger(__name__)
 
@@ -318,7 +319,7 @@ class RunManager:
                 "status": status,
                 "outcome": outcome.outcome,
                 "detail": outcome.detail,
-                "metrics": _finite(outcome.metrics),
+                "metrics": json_safe(outcome.metrics),
                 "n_steps": n_steps,
             },
         )
@@ -337,10 +338,10 @@ class RunManager:
             active = self._active
             return active.stop_reason if active is not None and active.run_id == run_id else ""
 
-    def _publish_step(self, rec: StepRecord, row: StepRow) -> None:
+    def _publish_step(self, rec: StepRecord, row: StepRow, row_json: Mapping[str, Any]) -> None:
         self.store.add_step(rec.run_id, row)
-        # the event carries the one step schema (console.store.step_dict), as the API and trajectory.json
-        self.hub.publish("step", rec.run_id, {"status": "running", **step_dict(row)})
+        # the event carries the one step schema's JSON (console.step_schema), as the API and trajectory.json
+        self.hub.publish("step", rec.run_id, {"status": "running", **row_json})
         if self.viewer is not None:
             self.viewer.offer(rec)
 
@@ -447,11 +448,13 @@ class _RunSink:
             reid_history=tuple(self.reid_history),
             step_ms=s.step_ms,
         )
-        row = _step_row(rec)
-        self.traj_rows.append(step_dict(row))
+        schema = self.manager.store.step_schema  # the one step definition (console.step_schema)
+        row = schema.from_step(rec)
+        row_json = schema.to_json(row)
+        self.traj_rows.append(row_json)
         for k, v in row.timings.items():
             self.part_sums[k] = self.part_sums.get(k, 0.0) + float(v)
-        self.manager._publish_step(rec, row)
+        self.manager._publish_step(rec, row, row_json)
         self.writer.add_step(rec)
         if s.step == 0:  # goal.png: not needed before the first action
             try:
@@ -459,39 +462,6 @@ class _RunSink:
             except OSError:  # a file of the run, never a reason to end it
                 logger.exception("run %s: writing goal.png failed", self.run_id)
         self.t_last_step = time.perf_counter()
-
-
-def _finite(value: Any) -> Any:
-    from console.store import json_safe
-
-    return json_safe(value)
-
-
-def _step_row(rec: StepRecord) -> StepRow:
-    r = rec.record
-    target = None if r is None else r.target_xy_m
-    return StepRow(
-        step=rec.step,
-        t_s=rec.t_s,
-        action=int(rec.action),
-        x_m=float(rec.pose.x_m),
-        y_m=float(rec.pose.y_m),
-        yaw_rad=float(rec.pose.yaw_rad),
-        mode="" if r is None else str(r.mode),
-        reason="" if r is None else str(r.reason),
-        reid_score=None if r is None or r.reid_score is None else float(r.reid_score),
-        reid_tau=None if r is None or r.reid_tau is None else float(r.reid_tau),
-        goal_detected=False if r is None else bool(r.goal_detected),
-        n_goal_points=0 if r is None else int(len(r.goal_points_xyz)),
-        target_x_m=None if target is None else float(target[0]),
-        target_y_m=None if target is None else float(target[1]),
-        target_kind=None if r is None else r.target_kind,
-        planner_error=None if r is None else r.planner_error,
-        timings={"step_ms": rec.step_ms, **({} if r is None else {k: float(v) for k, v in r.timings_ms.items()})},
-        reid_full_matcher=None if r is None or r.reid_full_matcher is None else bool(r.reid_full_matcher),
-        reid_gate_score=None if r is None or r.reid_gate_score is None else float(r.reid_gate_score),
-        reid_exit_score=None if r is None or r.reid_exit_score is None else float(r.reid_exit_score),
-    )
 
 
 def start_pose_dict(pose: Pose2D) -> dict[str, float]:

@@ -4,8 +4,8 @@ Tables
 ------
 runs   one row per run: goal photo (path + hashes), backend and options, agent
        configuration, status, outcome, metrics and timings (JSON columns).
-steps  one row per agent step: action, pose, mode, reason, re-ID score and tau,
-       target, per-part timings.
+steps  one row per agent step: its columns, migration, insert and select are generated from
+       the one step definition (``console.step_schema.StepRow``).
 replay_steps, replay_maps   what a replay needs (console.replay): a JPEG thumbnail and a
        small JSON per step, the agent's map every few steps.
 
@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import sqlite3
 import threading
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Mapping
 
-from agent.types import Action
+from console.jsonio import dumps as _dump
+from console.step_schema import STEP_SCHEMA, StepRow, StepSchema
 
 logger = logging.getLogger(__name__)
 
@@ -57,30 +56,6 @@ CREATE TABLE IF NOT EXISTS runs (
     error           TEXT
 );
 CREATE INDEX IF NOT EXISTS runs_created ON runs (created_s);
-CREATE TABLE IF NOT EXISTS steps (
-    run_id          TEXT NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
-    step            INTEGER NOT NULL,
-    t_s             REAL NOT NULL,
-    action          INTEGER NOT NULL,
-    x_m             REAL NOT NULL,
-    y_m             REAL NOT NULL,
-    yaw_rad         REAL NOT NULL,
-    mode            TEXT NOT NULL,
-    reason          TEXT NOT NULL,
-    reid_score      REAL,
-    reid_tau        REAL,
-    goal_detected   INTEGER NOT NULL,
-    n_goal_points   INTEGER NOT NULL,
-    target_x_m      REAL,
-    target_y_m      REAL,
-    target_kind     TEXT,
-    planner_error   TEXT,
-    timings_json    TEXT NOT NULL,
-    reid_full_matcher INTEGER,
-    reid_gate_score REAL,
-    reid_exit_score REAL,
-    PRIMARY KEY (run_id, step)
-);
 CREATE TABLE IF NOT EXISTS replay_steps (
     run_id          TEXT NOT NULL REFERENCES runs (id) ON DELETE CASCADE,
     step            INTEGER NOT NULL,
@@ -106,37 +81,13 @@ _JSON_COLUMNS = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class StepRow:
-    """One agent step as stored (pose in the run's start-relative frame)."""
-
-    step: int
-    t_s: float
-    action: int
-    x_m: float
-    y_m: float
-    yaw_rad: float
-    mode: str
-    reason: str
-    reid_score: float | None
-    reid_tau: float | None
-    goal_detected: bool
-    n_goal_points: int
-    target_x_m: float | None
-    target_y_m: float | None
-    target_kind: str | None
-    planner_error: str | None
-    timings: Mapping[str, float]
-    reid_full_matcher: bool | None = None  # the full re-ID matcher ran (False: the gate skipped it)
-    reid_gate_score: float | None = None  # the gate's cheap score (None: gate off)
-    reid_exit_score: float | None = None  # the gate's second stage: LighterGlue's score after its exit layer
-
-
 class RunStore:
     """SQLite-backed run records. Thread-safe; one instance per data directory."""
 
-    def __init__(self, db_path: Path) -> None:
+    def __init__(self, db_path: Path, step_schema: StepSchema = STEP_SCHEMA) -> None:
+        """``step_schema``: the steps table's definition (``console.step_schema``; tests extend it)."""
         self.db_path = Path(db_path)
+        self.step_schema = step_schema
         self.db_path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
         self._db = sqlite3.connect(str(self.db_path), check_same_thread=False, isolation_level=None)
@@ -146,11 +97,10 @@ class RunStore:
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
-            # files from before the re-ID gate (schema 2) gain its step columns
-            have = {r["name"] for r in self._db.execute("PRAGMA table_info(steps)").fetchall()}
-            for col, kind in (("reid_full_matcher", "INTEGER"), ("reid_gate_score", "REAL"), ("reid_exit_score", "REAL")):
-                if col not in have:
-                    self._db.execute(f"ALTER TABLE steps ADD COLUMN {col} {kind}")
+            # the steps table from the one step definition; an older file gains the fields it lacks
+            added = self.step_schema.migrate(self._db)
+            if added:
+                logger.info("%s: the steps table gained %s", self.db_path, ", ".join(added))
             self._db.execute(
                 "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
             )
@@ -257,35 +207,7 @@ class RunStore:
 
     def add_step(self, run_id: str, row: StepRow) -> None:
         with self._lock:
-            self._db.execute(
-                "INSERT OR REPLACE INTO steps (run_id, step, t_s, action, x_m, y_m, yaw_rad, mode, reason, "
-                "reid_score, reid_tau, goal_detected, n_goal_points, target_x_m, target_y_m, target_kind, "
-                "planner_error, timings_json, reid_full_matcher, reid_gate_score, reid_exit_score) "
-                "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                (
-                    run_id,
-                    row.step,
-                    row.t_s,
-                    row.action,
-                    row.x_m,
-                    row.y_m,
-                    row.yaw_rad,
-                    row.mode,
-                    row.reason,
-                    row.reid_score,
-                    row.reid_tau,
-                    int(row.goal_detected),
-                    row.n_goal_points,
-                    row.target_x_m,
-                    row.target_y_m,
-                    row.target_kind,
-                    row.planner_error,
-                    _dump(dict(row.timings)),
-                    None if row.reid_full_matcher is None else int(row.reid_full_matcher),
-                    row.reid_gate_score,
-                    row.reid_exit_score,
-                ),
-            )
+            self.step_schema.insert(self._db, run_id, row)
             self._db.execute("UPDATE runs SET n_steps=? WHERE id=?", (row.step + 1, run_id))
 
     # --- replay (console.replay) ---------------------------------------------------
@@ -348,75 +270,11 @@ class RunStore:
 
     def steps(self, run_id: str) -> list[StepRow]:
         with self._lock:
-            rows = self._db.execute("SELECT * FROM steps WHERE run_id=? ORDER BY step", (run_id,)).fetchall()
-        return [
-            StepRow(
-                step=r["step"],
-                t_s=r["t_s"],
-                action=r["action"],
-                x_m=r["x_m"],
-                y_m=r["y_m"],
-                yaw_rad=r["yaw_rad"],
-                mode=r["mode"],
-                reason=r["reason"],
-                reid_score=r["reid_score"],
-                reid_tau=r["reid_tau"],
-                goal_detected=bool(r["goal_detected"]),
-                n_goal_points=r["n_goal_points"],
-                target_x_m=r["target_x_m"],
-                target_y_m=r["target_y_m"],
-                target_kind=r["target_kind"],
-                planner_error=r["planner_error"],
-                timings=json.loads(r["timings_json"]),
-                reid_full_matcher=None if r["reid_full_matcher"] is None else bool(r["reid_full_matcher"]),
-                reid_gate_score=r["reid_gate_score"],
-                reid_exit_score=r["reid_exit_score"],
-            )
-            for r in rows
-        ]
+            return self.step_schema.select(self._db, run_id)
 
-
-def _dump(value: Any) -> str:
-    return json.dumps(json_safe(value), sort_keys=True, allow_nan=False, default=_json_default)
-
-
-def json_safe(value: Any) -> Any:
-    """Non-finite floats -> None (JSON has no NaN/inf; browsers reject them), recursively."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, Mapping):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    try:
-        import numpy as np
-
-        if isinstance(value, np.floating):
-            return json_safe(float(value))
-        if isinstance(value, np.integer):
-            return int(value)
-        if isinstance(value, np.bool_):
-            return bool(value)
-    except ImportError:  # pragma: no cover
-        pass
-    return value
-
-
-def _json_default(value: Any) -> Any:
-    try:
-        import numpy as np
-
-        if isinstance(value, np.generic):
-            return value.item()
-        if isinstance(value, np.ndarray):
-            return value.tolist()
-    except ImportError:  # pragma: no cover
-        pass
-    if isinstance(value, (set, frozenset, tuple)):
-        return list(value)
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+    def steps_json(self, run_id: str) -> list[dict[str, Any]]:
+        """The run's steps as the API, the event stream and trajectory.json carry them."""
+        return self.step_schema.to_json_rows(self.steps(run_id))
 
 
 def _run_dict(row: sqlite3.Row) -> dict[str, Any]:
@@ -429,19 +287,3 @@ def _run_dict(row: sqlite3.Row) -> dict[str, Any]:
             out[key] = value
     return out
 
-
-def step_dict(row: StepRow) -> dict[str, Any]:
-    """The one step schema, as JSON: the SQLite columns (``StepRow``) plus the action's name.
-    The API's steps, the event stream's step events and trajectory.json all carry exactly this."""
-    out: dict[str, Any] = {name: getattr(row, name) for name in StepRow.__slots__}
-    out["timings"] = dict(row.timings)
-    out["action_name"] = Action(row.action).name
-    for k, v in out.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            out[k] = None
-    return out
-
-
-def as_step_rows(rows: Iterable[StepRow]) -> list[dict[str, Any]]:
-    """Step rows in the one step schema (``step_dict``)."""
-    return [step_dict(r) for r in rows]

@@ -12,7 +12,7 @@ from console.calibration import DEPLOYMENTS, CalibrationInputError, LabelledPhot
 from console.context import Console
 from console.deps import ConsoleDep, TokenDep, check_token, error
 from console.photos import PhotoError, decode_photo
-from console.store import json_safe
+from console.jsonio import json_safe
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 

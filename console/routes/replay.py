@@ -12,11 +12,10 @@ from fastapi.responses import Response
 from PIL import Image
 from starlette.concurrency import run_in_threadpool
 
-from agent.types import Action
 from console.deps import ConsoleDep, TokenDep, error
 from console.replay import map_picture, replay_marks
 from console.routes.runs import get_row
-from console.store import as_step_rows, json_safe
+from console.jsonio import json_safe
 from console.words import action_words, mode_words, step_words
 
 router = APIRouter(tags=["replay"])
@@ -25,10 +24,7 @@ StepParam = Path(ge=0, le=100_000, description="the step number (0 = the first a
 
 
 def _timeline(console: Any, run_id: str) -> tuple[list[dict[str, Any]], dict[int, dict[str, Any]]]:
-    steps = as_step_rows(console.store.steps(run_id))
-    for s in steps:
-        s["action_name"] = Action(s["action"]).name
-    return steps, console.store.replay_extras(run_id)
+    return console.store.steps_json(run_id), console.store.replay_extras(run_id)
 
 
 @router.get("/api/runs/{run_id}/replay", summary="A run's timeline for replay: every step in words, marks to jump to")
@@ -37,23 +33,16 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
     steps, extras = _timeline(console, run_id)
     timeline = []
     for s in steps:
-        ex = extras.get(s["step"], {})
-        cands = ex.get("candidates", [])
+        cands = extras.get(s["step"], {}).get("candidates", [])
         timeline.append(
             {
-                "step": s["step"],
+                # every field of the one step schema (console.step_schema) but the per-part timings,
+                # kept out so that a 1000-step timeline stays small; "action" is the name here
+                **{k: v for k, v in s.items() if k != "timings"},
                 "action": s["action_name"],
                 "action_words": action_words(s["action_name"]),
-                "mode": s["mode"],
                 "mode_words": mode_words(s["mode"]),
-                "reason": s["reason"],
                 "words": step_words(s),
-                "reid_score": s["reid_score"],
-                "reid_tau": s["reid_tau"],
-                "reid_full_matcher": s.get("reid_full_matcher"),
-                "reid_gate_score": s.get("reid_gate_score"),
-                "reid_exit_score": s.get("reid_exit_score"),
-                "goal_detected": s["goal_detected"],
                 "pose": [s["x_m"], s["y_m"], s["yaw_rad"]],
                 "n_candidates": len([c for c in cands if c.get("state") != "rejected"]),
                 "has_frame": s["step"] in extras,

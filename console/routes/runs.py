@@ -17,7 +17,7 @@ from console.manager import RunConflict
 from console.options import RunForm
 from console.photos import PhotoError, decode_photo
 from console.session import OptionsError, ProviderUnavailable
-from console.store import as_step_rows, json_safe
+from console.jsonio import json_safe
 from console.words import distance_driven_m, run_summary, timing_rows
 
 router = APIRouter(tags=["runs"])
@@ -149,7 +149,7 @@ def list_runs(
 @router.get("/api/runs/{run_id}", summary="One run (and its steps with ?steps=true)")
 def get_run(run_id: str, console: ConsoleDep, steps: bool = False) -> dict[str, Any]:
     row = get_row(console, run_id)
-    step_rows = as_step_rows(console.store.steps(run_id)) if steps or row["status"] in FINAL else None
+    step_rows = console.store.steps_json(run_id) if steps or row["status"] in FINAL else None
     out = run_view(console, row, step_rows)
     if steps:
         out["steps"] = json_safe(step_rows)
