@@ -121,14 +121,14 @@ def test_viewer_shows_a_replayed_step(finished) -> None:
         row = console.store.get_run(run_id)
         viewer.show_replay(console.store, row, steps_json, console.store.replay_extras(run_id), 12)
         assert viewer.replay_step == 12
-        assert "Replay of run" in viewer._status.content and "Step 13" in viewer._status.content
-        assert viewer._occupancy is not None and viewer._trajectory is not None
+        assert "Replay of run" in viewer.scene.status.content and "Step 13" in viewer.scene.status.content
+        assert viewer.scene.occupancy is not None and viewer.scene.trajectory is not None
         # the slider moves through the run
-        viewer._replay["slider"].value = 20
+        viewer.replay.state.slider.value = 20
         assert viewer.replay_step == 19
         # a live run ends the replay
         viewer.run_started("fedcbafedcba", np.zeros((8, 8, 3), np.uint8), {})
-        assert viewer._replay is None
+        assert viewer.replay.state is None
     finally:
         viewer.close()
 

@@ -84,7 +84,7 @@ def test_occupancy_plane_is_not_mirrored() -> None:
         viewer.run_started(recs[0].run_id, recs[0].goal_rgb, {})
         viewer.publish(recs[-1], with_map=True)
         snap = recs[-1].record.map
-        image = viewer._occupancy.image
+        image = viewer.scene.occupancy.image
         known = snap.explored | snap.obstacle
         ii, _ = np.nonzero(known)
         # the scripted map's obstacle row is its lowest known row (i = 10): first texture row
