@@ -6,7 +6,7 @@ from agent.candidates import CandidateMemory, CandidateState, evaluate
 from agent.localisation import GoalLocaliser, LocalisationConfig
 from agent.mapping import GridMap
 from agent.types import Pose2D
-from test_agent_localisation import BOXES, obs_and_ids
+from tests.helpers.agent_scenes import BOXES, obs_and_ids
 
 
 def _add_view(loc, pose, step, score):

@@ -6,7 +6,7 @@ from agent.frontier import FrontierConfig, FrontierExplorer, frontier_mask
 from agent.mapping import GridMap
 from agent.planner import FMMPlanner
 from agent.types import Pose2D
-from agent_scenes import observation, room_walls
+from tests.helpers.agent_scenes import observation, room_walls
 
 
 def box(grid, layer, x0, y0, x1, y1, value=True):

@@ -4,19 +4,8 @@ from agent.localisation import GoalLocaliser, LocalisationConfig
 from agent.mapping import GridMap
 from agent.segmentation import GoalSegmenter, SegmentationConfig, crop_mask, grabcut_mask
 from agent.types import Pose2D
-from agent_scenes import SMALL_INTRINSICS, render_depth, room_walls
+from tests.helpers.agent_scenes import BOXES, obs_and_ids
 from agent.types import Observation
-
-GOAL_BOX = (3.0, -0.3, 3.6, 0.3, 0.8)
-BOXES = room_walls(-1.0, -2.0, 6.0, 2.0) + [GOAL_BOX]
-
-
-def obs_and_ids(pose=Pose2D()):
-    depth, ids = render_depth(BOXES, pose, return_ids=True)
-    rgb = np.zeros(depth.shape + (3,), np.uint8)
-    return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=SMALL_INTRINSICS,
-                       goal_image=np.zeros((64, 64, 3), np.uint8)), ids
-
 
 def test_matches_on_the_object_become_goal_points_and_outliers_are_clustered_away():
     obs, ids = obs_and_ids()

@@ -4,7 +4,7 @@ import numpy as np
 
 from agent.mapping import GridMap, MappingConfig
 from agent.types import Pose2D
-from agent_scenes import observation, room_walls
+from tests.helpers.agent_scenes import observation, room_walls
 
 ROOM = room_walls(-1.0, -2.0, 5.0, 2.0)  # 6 x 4 m room, robot at the origin facing +x
 

@@ -8,34 +8,8 @@ from agent.config import AgentConfig, PolicyConfig
 from agent.modes import SCAN_TURNS, Decision, Mode
 from agent.policy import ModIINAgent
 from agent.types import Action, Pose2D
-from agent_scenes import BoxWorld, room_walls
-from test_agent_policy import oracle_config, two_rooms
-
-
-def run_decisions(agent, world, max_steps=300):
-    """[(Decision, AgentRecord)] of one run, stopping at STOP."""
-    obs = world.observe()
-    agent.reset(obs.goal_image)
-    out = []
-    for _ in range(max_steps):
-        action = agent.act(obs)
-        d, rec = agent.last_decision, agent.last_record
-        assert isinstance(d, Decision) and d.action == action == rec.action
-        # the record carries the decision
-        assert rec.mode == d.mode.value and rec.reason == d.reason and rec.target_kind == d.target_kind
-        assert rec.planner_error == d.planner_error
-        assert (rec.target_xy_m is None) == (d.plan is None)
-        assert len(rec.goal_points_xyz) == (0 if d.candidate is None else d.candidate.n_points)
-        out.append((d, rec))
-        world.apply(action)
-        if action == Action.STOP:
-            break
-        obs = world.observe()
-    return out
-
-
-def oracle_agent(world, **policy):
-    return ModIINAgent(oracle_config(**policy), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
+from tests.helpers.agent_runs import oracle_agent, oracle_config, run_decisions
+from tests.helpers.agent_scenes import BoxWorld, room_walls, two_rooms
 
 
 def test_look_around_then_explore_then_approach_then_stopped():

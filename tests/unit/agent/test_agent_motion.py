@@ -8,7 +8,7 @@ from agent.modes import MotionState
 from agent.motion import blocked_here, move_key, safe_action
 from agent.planner import FMMPlanner, Plan
 from agent.types import Action, Pose2D
-from agent_scenes import observation, room_walls
+from tests.helpers.agent_scenes import observation, room_walls
 
 
 def test_a_failed_forward_move_is_not_repeated_and_no_to_and_fro():

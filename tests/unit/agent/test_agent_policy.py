@@ -6,32 +6,10 @@ import pytest
 from agent.config import AgentConfig, PolicyConfig, load_agent_config
 from agent.configio import ConfigError, from_dict
 from agent.policy import ModIINAgent
-from agent.reid import Features, Matches
 from agent.reid.identifier import ReIDConfig
 from agent.types import Action, Agent, Pose2D
-from agent_scenes import BoxWorld, room_walls
-
-
-def two_rooms():
-    """Room A (x -3..1) and room B (x 1..5), y -2..2, joined by a 0.9 m door at y in [-0.45, 0.45];
-    the goal (a 0.6 m cube) stands in room B's far corner, hidden from the start."""
-    walls = room_walls(-3.0, -2.0, 5.0, 2.0)
-    walls += [(1.0, -2.0, 1.1, -0.45, 2.5), (1.0, 0.45, 1.1, 2.0, 2.5)]
-    goal = (4.0, 1.0, 4.6, 1.6, 0.6)
-    decoy = (-2.6, 1.2, -2.0, 1.8, 0.6)
-    boxes = walls + [goal, decoy]
-    return boxes, len(walls), len(walls) + 1
-
-
-class NoMatcher:
-    """A matcher that never matches (re-ID is the oracle in these tests)."""
-    name = "none"
-
-    def extract(self, rgb, max_keypoints):
-        return Features(np.zeros((0, 2), np.float32), None, (rgb.shape[1], rgb.shape[0]))
-
-    def match(self, goal, obs):
-        return Matches.empty()
+from tests.helpers.agent_runs import NoMatcher, oracle_config
+from tests.helpers.agent_scenes import BoxWorld, room_walls, two_rooms
 
 
 def run(agent, world, max_steps=300):
@@ -46,12 +24,6 @@ def run(agent, world, max_steps=300):
             return rec
         obs = world.observe()
     return agent.last_record
-
-
-def oracle_config(**policy):
-    pol = dict(reid_source="oracle", localisation_source="oracle")
-    pol.update(policy)
-    return AgentConfig(policy=PolicyConfig(**pol))
 
 
 def test_oracle_agent_finds_the_goal_in_the_other_room():

@@ -11,8 +11,8 @@ from agent.modes import Mode
 from agent.stop_region import core_cells, core_points
 from agent.projection import points_in_view
 from agent.types import Pose2D
-from agent_scenes import BoxWorld, observation, room_walls
-from test_agent_modes import oracle_agent, run_decisions
+from tests.helpers.agent_scenes import BoxWorld, observation, room_walls
+from tests.helpers.agent_runs import oracle_agent, run_decisions
 
 
 def _candidate(grid, points_xyz):

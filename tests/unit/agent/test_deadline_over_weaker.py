@@ -4,8 +4,8 @@ rejected one's."""
 
 from agent.modes import Mode
 from agent.types import Action, Pose2D
-from test_agent_policy import two_rooms
-from test_exhausted_recheck import PaintedWorld, _painted_agent
+from tests.helpers.agent_runs import painted_agent
+from tests.helpers.agent_scenes import PaintedWorld, two_rooms
 
 BUDGET = 230
 
@@ -19,7 +19,7 @@ def run(over_weaker: bool, budget: int = BUDGET, window: int = BUDGET):
     last resort at step 248. Returns (decisions with records, distance to the goal per step)."""
     boxes, goal, decoy = two_rooms()
     world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
-    agent, _ = _painted_agent(world, lambda: 20.0, exhausted_recheck_frames=8, last_resort_at_deadline=True,
+    agent, _ = painted_agent(world, lambda: 20.0, exhausted_recheck_frames=8, last_resort_at_deadline=True,
                               step_budget=budget, deadline_window_steps=window, deadline_over_weaker=over_weaker)
     obs = world.observe()
     agent.reset(obs.goal_image)

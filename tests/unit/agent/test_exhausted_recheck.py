@@ -5,21 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from agent.config import AgentConfig, PolicyConfig
 from agent.modes import Mode
-from agent.policy import ModIINAgent
-from agent.reid.base import Matches
-from agent.reid.identifier import ReIDConfig, ReIDResult
-from agent.segmentation import SegmentationConfig
 from agent.shortlist import FrameShortlist
 from agent.types import Pose2D
-from agent_scenes import SMALL_INTRINSICS, BoxWorld, observation
-from test_agent_modes import run_decisions
-from test_agent_policy import NoMatcher, two_rooms
-
-GOAL_RGB = (255, 0, 0)
-DECOY_RGB = (0, 255, 0)
-
+from tests.helpers.agent_runs import painted_agent
+from tests.helpers.agent_scenes import SMALL_INTRINSICS, PaintedWorld, observation, two_rooms
 
 def _obs(x, y, yaw_deg, step, value=0):
     rgb = np.full((SMALL_INTRINSICS.height_px, SMALL_INTRINSICS.width_px, 3), value, np.uint8)
@@ -56,60 +46,13 @@ def test_the_shortlist_copies_the_frames_and_can_be_off():
         FrameShortlist(-1)
 
 
-class PaintedWorld(BoxWorld):
-    """BoxWorld whose frames show the goal in red and the decoy in green, so that a frame scored
-    later (from the shortlist) carries what it saw."""
-
-    def __init__(self, *a, decoy: int, **kw) -> None:
-        super().__init__(*a, **kw)
-        self.decoy = decoy
-
-    def observe(self):
-        obs = super().observe()
-        obs.rgb[self._ids == self.goal_box] = GOAL_RGB
-        obs.rgb[self._ids == self.decoy] = DECOY_RGB
-        return obs
-
-
-def _painted_agent(world, goal_score, **policy):
-    """tau 100, potential at tau/2. The scripted matcher reads the frame: where the goal's pixels
-    show it scores ``goal_score()``, where the decoy's show 5. The gate's count (the shortlist's
-    rank) is the number of such pixels, the decoy's counting half. Matches sit on the painted
-    pixels; localisation lifts them (the goal image's mask is all of it)."""
-    pol = dict(reid_source="matcher", localisation_source="goal_mask", potential_tau_ratio=0.5, verify=True,
-               verify_by="approach", verify_ring_tau_ratio=0.5, last_resort=True)
-    pol.update(policy)
-    cfg = AgentConfig(reid=ReIDConfig(tau=100.0), policy=PolicyConfig(**pol),
-                      segmentation=SegmentationConfig(source="oracle"))
-    agent = ModIINAgent(cfg, matcher=NoMatcher(), goal_mask_fn=lambda img: np.ones(img.shape[:2], bool))
-    ungated = []
-
-    def compare(rgb, use_gate=True):
-        goal = np.all(rgb == GOAL_RGB, axis=2)
-        decoy = np.all(rgb == DECOY_RGB, axis=2)
-        n_goal, n_decoy = int(goal.sum()), int(decoy.sum())
-        if n_goal >= 20:
-            score, px = goal_score(), np.argwhere(goal)[:, ::-1].astype(np.float32)
-        elif n_decoy >= 20:
-            score, px = 5.0, np.argwhere(decoy)[:, ::-1].astype(np.float32)
-        else:
-            score, px = 0.0, np.zeros((0, 2), np.float32)
-        if not use_gate:
-            ungated.append(score)
-        px = px[:: max(1, len(px) // 40)]
-        return ReIDResult(score, Matches.empty(), px.copy(), px, 0.0, 0.0, gate_score=float(n_goal + 0.5 * n_decoy))
-
-    agent.reid.compare = compare
-    return agent, ungated
-
-
 def run_exhausted(frames, **policy):
     """The two-room world of the tests below: (decisions with records, world, ungated scores)."""
     boxes, goal, decoy = two_rooms()
     world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
     second_look = {"taken": False}
     # 20 wherever it is seen while exploring; after the second look, 60 from within 2.6 m
-    agent, ungated = _painted_agent(
+    agent, ungated = painted_agent(
         world, lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
         exhausted_recheck_frames=frames, **policy)
     steps = []

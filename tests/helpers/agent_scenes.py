@@ -131,3 +131,47 @@ class BoxWorld:
         x0, y0, x1, y1, _ = self.boxes[self.goal_box]
         cx, cy = min(max(self.pose.x_m, x0), x1), min(max(self.pose.y_m, y0), y1)
         return math.hypot(self.pose.x_m - cx, self.pose.y_m - cy)
+
+
+# A room with one goal box (the localisation and candidate tests).
+GOAL_BOX = (3.0, -0.3, 3.6, 0.3, 0.8)
+BOXES = room_walls(-1.0, -2.0, 6.0, 2.0) + [GOAL_BOX]
+
+
+def obs_and_ids(pose: Pose2D = Pose2D()) -> tuple[Observation, np.ndarray]:
+    """The observation from ``pose`` in the one-box room and each pixel's box index (-1: floor)."""
+    depth, ids = render_depth(BOXES, pose, return_ids=True)
+    rgb = np.zeros(depth.shape + (3,), np.uint8)
+    return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=SMALL_INTRINSICS,
+                       goal_image=np.zeros((64, 64, 3), np.uint8)), ids
+
+
+def two_rooms():
+    """Room A (x -3..1) and room B (x 1..5), y -2..2, joined by a 0.9 m door at y in [-0.45, 0.45];
+    the goal (a 0.6 m cube) stands in room B's far corner, hidden from the start.
+    Returns (boxes, the goal's index, the decoy's index)."""
+    walls = room_walls(-3.0, -2.0, 5.0, 2.0)
+    walls += [(1.0, -2.0, 1.1, -0.45, 2.5), (1.0, 0.45, 1.1, 2.0, 2.5)]
+    goal = (4.0, 1.0, 4.6, 1.6, 0.6)
+    decoy = (-2.6, 1.2, -2.0, 1.8, 0.6)
+    boxes = walls + [goal, decoy]
+    return boxes, len(walls), len(walls) + 1
+
+
+GOAL_RGB = (255, 0, 0)
+DECOY_RGB = (0, 255, 0)
+
+
+class PaintedWorld(BoxWorld):
+    """BoxWorld whose frames show the goal in red and the decoy in green, so that a frame scored
+    later (from the shortlist) carries what it saw."""
+
+    def __init__(self, *a, decoy: int, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.decoy = decoy
+
+    def observe(self):
+        obs = super().observe()
+        obs.rgb[self._ids == self.goal_box] = GOAL_RGB
+        obs.rgb[self._ids == self.decoy] = DECOY_RGB
+        return obs
