@@ -132,6 +132,7 @@ class ScriptedAgent:
                            np.zeros(shape, bool), frontier)
         self._record = AgentRecord(
             step=obs.step, action=action, pose=obs.pose, mode="explore", reason=f"scripted step {self.n}",
+            event="stop_at_goal" if action == Action.STOP else "frontier",  # agent.events.Event values
             reid_score=float(self.n), reid_tau=10.0, map=snap,
             matches_goal_xy=np.array([[5, 5], [20, 20]], np.float32), matches_obs_xy=np.array([[50, 60], [100, 200]], np.float32),
             goal_points_xyz=np.array([[0.3, 0.2, 0.5]], np.float32), target_xy_m=(0.2, 0.2), target_kind="frontier",

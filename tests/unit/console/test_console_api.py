@@ -89,6 +89,8 @@ def test_one_step_schema_for_the_api_the_event_stream_and_trajectory_json(tmp_pa
     assert len(api_steps) == 4 and api_steps == traj_steps
     assert [{k: v for k, v in e.items() if k != "status"} for e in events] == api_steps
     assert api_steps[1]["action_name"] == "TURN_LEFT" and {"reid_full_matcher", "reid_gate_score", "timings"} <= set(api_steps[1])
+    # the agent's event (AgentRecord.event) is carried like every field of console.step_schema.StepRow
+    assert [s["event"] for s in api_steps] == ["frontier", "frontier", "frontier", "stop_at_goal"]
 
 
 def test_second_run_gets_409_and_stop_ends_the_first(client: TestClient, provider: ScriptedProvider) -> None:

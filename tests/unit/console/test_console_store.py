@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from console.store import RunStore, StepRow
+from console.step_schema import StepRow
+from console.store import RunStore
 
 
 def _step(i: int, score: float | None = 1.5) -> StepRow:
