@@ -65,7 +65,7 @@ def shared_matcher(reid_config: Any) -> Any:
     """The process-wide matcher for a re-ID config (built on first use)."""
     from agent.reid.identifier import make_matcher, matcher_key
 
-    key = matcher_key(reid_config)  # the early stop changes scores, the exit stage adds a hook: matchers of their own
+    key = matcher_key(reid_config)  # settings that change scores (or add the exit stage's hook) get matchers of their own
     with _matchers_lock:
         if key not in _matchers:
             _matchers[key] = make_matcher(reid_config)
@@ -139,7 +139,7 @@ def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> 
         return config, {"kind": "deployment_calibration", "path": str(own), **facts}
     if reid.calibration_file:
         return config, {"kind": "yaml_calibration_file", "path": str(reid.calibration_file)}
-    packaged = calibration_path(reid.matcher, reid.score, reid.early_stop)
+    packaged = calibration_path(reid.matcher, reid.score)
     note = "simulator goal pairs (imgnav calibrate), not this deployment's camera"
     if own is not None:
         note += f"; no {own} yet (calibrate from the operator's photos)"

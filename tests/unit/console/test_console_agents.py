@@ -32,11 +32,11 @@ def test_shared_matcher_accepts_read_only_images():
     assert features.keypoints_xy.shape[1] == 2
 
 
-def test_a_different_early_stop_gets_a_matcher_of_its_own():
+def test_a_different_matcher_setting_gets_a_matcher_of_its_own():
     from agent.reid import ReIDConfig
 
     agents._matchers.clear()
     full = agents.shared_matcher(ReIDConfig(num_threads=1))
-    early = agents.shared_matcher(ReIDConfig(num_threads=1, early_stop=0.95))
-    assert early is not full and agents.shared_matcher(ReIDConfig(num_threads=1)) is full
-    assert early._glue.net.conf.depth_confidence == 0.95 and full._glue.net.conf.depth_confidence == -1.0
+    strict = agents.shared_matcher(ReIDConfig(num_threads=1, min_confidence=0.2))
+    assert strict is not full and agents.shared_matcher(ReIDConfig(num_threads=1)) is full
+    assert strict.min_confidence == 0.2 and full.min_confidence == 0.1
