@@ -65,7 +65,9 @@ def shared_matcher(reid_config: Any) -> Any:
     """The process-wide matcher for a re-ID config (built on first use)."""
     from agent.reid.identifier import make_matcher, matcher_key
 
-    key = matcher_key(reid_config)  # settings that change scores (or add the exit stage's hook) get matchers of their own
+    key = matcher_key(
+        reid_config
+    )  # settings that change scores (or add the exit stage's hook) get matchers of their own
     with _matchers_lock:
         if key not in _matchers:
             _matchers[key] = make_matcher(reid_config)
@@ -133,7 +135,9 @@ def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> 
         config = dataclasses.replace(config, reid=dataclasses.replace(reid, calibration_file=str(own)))
         # the calibration's own facts (dates, pair counts, source, max F ...), scalars only
         facts = {
-            k: v for k, v in data.items() if k not in ("matcher", "score", "tau", "kind", "path")
+            k: v
+            for k, v in data.items()
+            if k not in ("matcher", "score", "tau", "kind", "path")
             and (v is None or isinstance(v, (str, int, float, bool)))
         }
         return config, {"kind": "deployment_calibration", "path": str(own), **facts}
@@ -163,7 +167,9 @@ def build_agent(deployment: str | Path | Deployment) -> tuple[Agent, dict[str, A
     as_dict["deployment"] = str(deployment)
     as_dict["tau_resolved"] = getattr(agent, "tau", None)
     as_dict["tau_source"] = tau_source
-    logger.info("agent %s: tau %s from %s (%s)", deployment, as_dict["tau_resolved"], tau_source["kind"], tau_source["path"])
+    logger.info(
+        "agent %s: tau %s from %s (%s)", deployment, as_dict["tau_resolved"], tau_source["kind"], tau_source["path"]
+    )
     return agent, as_dict
 
 

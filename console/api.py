@@ -23,8 +23,9 @@ the console itself is built in the app's lifespan when ``create_app`` is given a
 from __future__ import annotations
 
 import logging
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
-from typing import Any, AsyncIterator, Callable
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
@@ -60,7 +61,11 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        built = console if console is not None else await run_in_threadpool(build)
+        if console is not None:
+            built = console
+        else:
+            assert build is not None  # checked above: exactly one of the two is given
+            built = await run_in_threadpool(build)
         app.state.console = built
         if on_ready is not None:
             on_ready(built)
@@ -94,7 +99,9 @@ def create_app(
     guarded = GuardMiddleware(app, max_bytes=config.max_request_bytes)
     # Outermost: a request whose Host header is not a name of this console (DNS rebinding)
     # gets 400 before anything else sees it.
-    return TrustedHostMiddleware(guarded, allowed_hosts=allowed_hosts(config.host, config.allowed_hosts), www_redirect=False)
+    return TrustedHostMiddleware(
+        guarded, allowed_hosts=allowed_hosts(config.host, config.allowed_hosts), www_redirect=False
+    )
 
 
 def _form_error_message(parser_message: str) -> str:

@@ -18,16 +18,17 @@ import io
 import json
 import logging
 import re
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 from PIL import Image
 
+from console.jsonio import json_safe
 from console.pictures import render_map, video_frame
 from console.replay import ReplayRecorder
 from console.session import StepRecord
-from console.jsonio import json_safe
 
 logger = logging.getLogger(__name__)
 
@@ -142,7 +143,7 @@ class ArtifactWriter:
             written.append("map.png")
         if self._frames:
             frames = [Image.open(io.BytesIO(b)).convert("RGB") for b in self._frames]
-            duration_ms = max(80, int(200 * self._stride ** 0.5))
+            duration_ms = max(80, int(200 * self._stride**0.5))
             frames[0].save(
                 self.dir / "run.webp",
                 format="WEBP",

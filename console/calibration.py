@@ -23,9 +23,10 @@ import logging
 import threading
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,9 @@ def check_photo_set(photos: Sequence[LabelledPhoto]) -> dict[str, int]:
     for p in photos:
         per_object[p.object_label] = per_object.get(p.object_label, 0) + 1
     if len(photos) > MAX_PHOTOS:
-        raise CalibrationInputError(f"{len(photos)} photos: at most {MAX_PHOTOS} per calibration (pairs grow with the square)")
+        raise CalibrationInputError(
+            f"{len(photos)} photos: at most {MAX_PHOTOS} per calibration (pairs grow with the square)"
+        )
     if len(per_object) < MIN_OBJECTS:
         raise CalibrationInputError(
             f"photos of {len(per_object)} object(s): photograph at least {MIN_OBJECTS} different objects, "
@@ -83,16 +86,34 @@ def tau_in_force(data_dir: Path, deployment: str) -> dict[str, Any]:
     saved = calibration_file(data_dir, deployment)
     if saved.is_file():
         doc = json.loads(saved.read_text())
-        return {"tau": doc.get("tau"), "matcher": doc.get("matcher"), "score": doc.get("score"),
-                "source": f"your photos ({saved.name}, {doc.get('created', '')})", "file": str(saved), "saved": doc}
+        return {
+            "tau": doc.get("tau"),
+            "matcher": doc.get("matcher"),
+            "score": doc.get("score"),
+            "source": f"your photos ({saved.name}, {doc.get('created', '')})",
+            "file": str(saved),
+            "saved": doc,
+        }
     from agent.config import load_agent_config
     from agent.reid.identifier import calibration_path, resolve_tau
 
     reid = load_agent_config(deployment).reid
-    where = "the deployment config" if reid.tau is not None else (
-        reid.calibration_file or f"the packaged simulator calibration ({calibration_path(reid.matcher, reid.score, reid.early_stop).name})"
+    where = (
+        "the deployment config"
+        if reid.tau is not None
+        else (
+            reid.calibration_file
+            or f"the packaged simulator calibration ({calibration_path(reid.matcher, reid.score).name})"
+        )
     )
-    return {"tau": resolve_tau(reid), "matcher": reid.matcher, "score": reid.score, "source": where, "file": None, "saved": None}
+    return {
+        "tau": resolve_tau(reid),
+        "matcher": reid.matcher,
+        "score": reid.score,
+        "source": where,
+        "file": None,
+        "saved": None,
+    }
 
 
 @dataclass
@@ -174,7 +195,6 @@ class Calibrator:
         doc = {
             "matcher": proposal["matcher"],
             "score": proposal["score"],
-            "early_stop": proposal["early_stop"],  # the matcher setting the scores were made with
             "tau": proposal["tau"],
             "max_f": proposal["max_f"],
             "precision": proposal["precision"],
@@ -233,7 +253,9 @@ class Calibrator:
         curves = {}
         for kind, scores in (("conf", conf), ("count", count)):
             c = pr_curves(scores, label)
-            keep = np.unique(np.linspace(0, len(c.threshold) - 1, min(CURVE_POINTS, len(c.threshold))).round().astype(int))
+            keep = np.unique(
+                np.linspace(0, len(c.threshold) - 1, min(CURVE_POINTS, len(c.threshold))).round().astype(int)
+            )
             curves[kind] = {
                 "tau": c.tau,
                 "max_f": c.max_f,
@@ -256,7 +278,6 @@ class Calibrator:
             "proposal": {
                 "matcher": reid.matcher,
                 "score": reid.score,
-                "early_stop": reid.early_stop,
                 "tau": chosen["tau"],
                 "max_f": chosen["max_f"],
                 "precision": chosen["precision"],
@@ -270,7 +291,13 @@ class Calibrator:
             "objects": objects,
             "photos": n,
             "pair_scores": [
-                {"a": job.photos[a].filename, "b": job.photos[b].filename, "same": bool(label[k]), "conf": conf[k], "count": count[k]}
+                {
+                    "a": job.photos[a].filename,
+                    "b": job.photos[b].filename,
+                    "same": bool(label[k]),
+                    "conf": conf[k],
+                    "count": count[k],
+                }
                 for k, (a, b) in enumerate(pairs)
             ],
             "extract_ms_per_photo": 1000 * extract_s / n,

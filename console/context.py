@@ -13,9 +13,9 @@ Data directory layout (everything the console writes is under it)::
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 from console.calibration import Calibrator
 from console.datalock import DataDirLock

@@ -7,7 +7,7 @@ with ``ConsoleDep``. Routes that can move the robot declare ``TokenDep`` (header
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
@@ -43,5 +43,3 @@ def require_token(request: Request, console: ConsoleDep) -> None:
 
 
 TokenDep = Depends(require_token)
-
-

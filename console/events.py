@@ -14,8 +14,9 @@ import itertools
 import json
 import logging
 import threading
+from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, AsyncIterator, Mapping
+from typing import Any
 
 logger = logging.getLogger(__name__)
 
@@ -106,7 +107,7 @@ class EventHub:
             while True:
                 try:
                     event = await asyncio.wait_for(sub.queue.get(), timeout=heartbeat_s)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     yield ": keep-alive\n\n"
                     continue
                 if event is None:  # hub closed

@@ -29,19 +29,19 @@ from __future__ import annotations
 import logging
 import threading
 import time
-import traceback
 import uuid
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
+from agent.loop import LoopError, LoopResult, LoopStep, run_loop
 from agent.types import Action, BackendError, Pose2D
 from console.artifacts import ArtifactWriter, run_dir
 from console.events import EventHub
 from console.jsonio import json_safe
-from agent.loop import LoopError, LoopResult, LoopStep, run_loop
 from console.photos import GoalPhoto
 from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
@@ -191,7 +191,9 @@ class RunManager:
             self.stop(active.run_id, "the console is shutting down")
             active.thread.join(timeout_s)
             if active.thread.is_alive():
-                logger.error("run %s did not stop within %.0f s; it will be marked interrupted", active.run_id, timeout_s)
+                logger.error(
+                    "run %s did not stop within %.0f s; it will be marked interrupted", active.run_id, timeout_s
+                )
 
     # --- the worker --------------------------------------------------------
 
@@ -241,7 +243,9 @@ class RunManager:
             t_loop = t_last_step = time.perf_counter()
             timings["setup_s"] = t_loop - t_opened  # the agent config row, the viewer
             try:
-                result = run_loop(session.backend, session.agent, resolved.max_steps, sinks=(sink,), should_stop=stop.is_set)
+                result = run_loop(
+                    session.backend, session.agent, resolved.max_steps, sinks=(sink,), should_stop=stop.is_set
+                )
             except LoopError as exc:  # handled below like any backend or agent failure, steps kept
                 last_action, n_steps = exc.result.last_action, exc.result.n_steps
                 _loop_timings(timings, exc.result)
@@ -278,7 +282,7 @@ class RunManager:
                 logger.error("run %s: backend error (%s): %s", run_id, exc.reason, exc)
                 status, outcome = "failed", Outcome("error", f"backend error ({exc.reason}): {exc}")
         except Exception as exc:  # the run fails, the console lives on; the traceback goes to the log
-            logger.error("run %s failed:\n%s", run_id, traceback.format_exc())
+            logger.exception("run %s failed", run_id)
             status, outcome = "failed", Outcome("error", f"{type(exc).__name__}: {exc}")
         finally:
             if t_loop is not None:  # kept when the loop raised, too
@@ -400,7 +404,7 @@ class _RunSink:
 
     def __init__(
         self,
-        manager: "RunManager",
+        manager: RunManager,
         run_id: str,
         goal_rgb: np.ndarray,
         writer: ArtifactWriter,

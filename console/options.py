@@ -22,7 +22,7 @@ class RunForm:
     max_steps: int | None = None
 
     @staticmethod
-    def of(**values: Any) -> "RunForm":
+    def of(**values: Any) -> RunForm:
         """From form values; empty strings count as not given."""
         return RunForm(**{k: v for k, v in values.items() if v not in (None, "")})
 
@@ -31,7 +31,8 @@ class RunForm:
 
 
 class RunOptions(Protocol):
-    max_steps: int
+    @property
+    def max_steps(self) -> int: ...  # read-only: the options are frozen dataclasses
 
     def to_json(self) -> dict[str, Any]: ...
 

@@ -100,7 +100,7 @@ def dhash(rgb: np.ndarray, hash_size: int = 8) -> int:
 
 
 def hamming(a: int, b: int) -> int:
-    return int(bin(a ^ b).count("1"))
+    return (a ^ b).bit_count()
 
 
 def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
@@ -124,7 +124,9 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         # PIL refuses images beyond twice its own limit before we can read the size; answer
         # with our limit, not PIL's wording.
         raise PhotoError(
-            413, "too_many_pixels", f"the image declares far more pixels than the limit of {_megapixels(limits.max_pixels)}"
+            413,
+            "too_many_pixels",
+            f"the image declares far more pixels than the limit of {_megapixels(limits.max_pixels)}",
         ) from None
     except (OSError, ValueError, SyntaxError) as exc:
         raise PhotoError(422, "corrupt", f"the image header cannot be read: {exc}") from None
@@ -150,8 +152,9 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             image.load()
             upright = ImageOps.exif_transpose(image)  # phones store rotation as an EXIF tag
-            if getattr(image, "n_frames", 1) > 1:
-                logger.info("goal photo has %d frames; using the first", image.n_frames)
+            n_frames = getattr(image, "n_frames", 1)  # only multi-frame formats (HEIC, animated WebP) have it
+            if n_frames > 1:
+                logger.info("goal photo has %d frames; using the first", n_frames)
             rgb_image = _to_rgb(upright)
     except PhotoError:
         raise
@@ -190,7 +193,7 @@ def _max_channel_std(rgb: np.ndarray) -> float:
         counts = np.bincount(flat[:, c], minlength=256).astype(np.int64)
         s1, s2 = int(counts @ values), int(counts @ (values * values))
         best = max(best, (n * s2 - s1 * s1) / (n * n))  # variance, from Python's exact integers
-    return best ** 0.5
+    return best**0.5
 
 
 def _megapixels(n_pixels: int) -> str:

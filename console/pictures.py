@@ -50,7 +50,9 @@ class MapView:
         return np.stack([u, v], axis=1)
 
 
-def _bounds(snapshot: MapSnapshot | None, points_xy: list[np.ndarray], margin_m: float) -> tuple[float, float, float, float]:
+def _bounds(
+    snapshot: MapSnapshot | None, points_xy: list[np.ndarray], margin_m: float
+) -> tuple[float, float, float, float]:
     xs: list[float] = []
     ys: list[float] = []
     if snapshot is not None:
@@ -112,7 +114,7 @@ def render_map(
     extra = np.zeros((0, 2)) if extra_points_xy_m is None else np.asarray(extra_points_xy_m, np.float64).reshape(-1, 2)
     pose_xy = np.zeros((0, 2)) if pose is None else np.array([[pose.x_m, pose.y_m]])
     target = np.zeros((0, 2)) if target_xy_m is None else np.array([target_xy_m], np.float64)
-    x0, x1, y0, y1 = _bounds(snapshot, [traj, goal_xy, pose_xy, target, extra], margin_m)
+    x0, x1, _y0, y1 = _bounds(snapshot, [traj, goal_xy, pose_xy, target, extra], margin_m)
     px_per_m = size_px / (x1 - x0)
     view = MapView(x0, y1, px_per_m, size_px, size_px)
 
@@ -155,8 +157,18 @@ def render_map(
         r_px = max(3, int(round(0.17 * px_per_m)))
         c = np.round(view.to_px(pose_xy)[0]).astype(int)
         cv2.circle(canvas, (int(c[0]), int(c[1])), r_px, ROBOT_RGB, -1, cv2.LINE_AA)
-        tip = view.to_px(np.array([[pose.x_m + 0.4 * math.cos(pose.yaw_rad), pose.y_m + 0.4 * math.sin(pose.yaw_rad)]]))[0]
-        cv2.arrowedLine(canvas, (int(c[0]), int(c[1])), (int(round(tip[0])), int(round(tip[1]))), (255, 255, 255), thick, cv2.LINE_AA, tipLength=0.35)
+        tip = view.to_px(
+            np.array([[pose.x_m + 0.4 * math.cos(pose.yaw_rad), pose.y_m + 0.4 * math.sin(pose.yaw_rad)]])
+        )[0]
+        cv2.arrowedLine(
+            canvas,
+            (int(c[0]), int(c[1])),
+            (int(round(tip[0])), int(round(tip[1]))),
+            (255, 255, 255),
+            thick,
+            cv2.LINE_AA,
+            tipLength=0.35,
+        )
     return canvas, view
 
 
@@ -208,7 +220,9 @@ def match_picture(
         cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
         cv2.circle(canvas, p, 2, colour, -1)
         cv2.circle(canvas, q, 2, colour, -1)
-    cv2.putText(canvas, f"{n} matches", (6, height_px - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 0), 1, cv2.LINE_AA)
+    cv2.putText(
+        canvas, f"{n} matches", (6, height_px - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 0), 1, cv2.LINE_AA
+    )
     return canvas
 
 

@@ -33,7 +33,8 @@ def build_providers(args: argparse.Namespace, data_dir: Path) -> dict[str, Backe
 
         # the robot's tau: the operator's own calibration in the data directory, when made
         providers["stretch"] = StretchProvider(
-            stretch_host, agent_deployment=Deployment("stretch", data_dir / "calibration")  # type: ignore[arg-type]
+            stretch_host,
+            agent_deployment=Deployment("stretch", data_dir / "calibration"),  # type: ignore[arg-type]
         )
         logger.info("Stretch backend offered (robot at %s)", stretch_host)
     return providers

@@ -18,6 +18,7 @@ import json
 import logging
 import struct
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -88,7 +89,7 @@ def _subsample(points: np.ndarray, n_max: int) -> np.ndarray:
     return points[idx]
 
 
-def step_extras(rec: "StepRecord", config: ReplayConfig) -> dict[str, Any]:
+def step_extras(rec: StepRecord, config: ReplayConfig) -> dict[str, Any]:
     """The per-step JSON: candidates, goal points, plan, target (start-relative metres)."""
     r = rec.record
     if r is None:
@@ -134,15 +135,15 @@ def thumbnail_jpeg(rgb: np.ndarray, config: ReplayConfig) -> bytes:
 class ReplayRecorder:
     """Feeds a run's replay rows to the store, one step at a time (the worker thread)."""
 
-    def __init__(self, store: "RunStore", run_id: str, config: ReplayConfig = ReplayConfig()) -> None:
+    def __init__(self, store: RunStore, run_id: str, config: ReplayConfig = ReplayConfig()) -> None:
         self.store = store
         self.run_id = run_id
         self.config = config
-        self._last: "StepRecord | None" = None
+        self._last: StepRecord | None = None
         self._last_map_step: int | None = None
         self._detected = False
 
-    def add(self, rec: "StepRecord") -> None:
+    def add(self, rec: StepRecord) -> None:
         self._last = rec
         extras = step_extras(rec, self.config)
         self.store.add_replay_step(self.run_id, rec.step, thumbnail_jpeg(rec.rgb, self.config), json.dumps(extras))
@@ -152,21 +153,27 @@ class ReplayRecorder:
         if r is not None and r.map is not None and (rec.step % self.config.map_every == 0 or first_detection):
             self._store_map(rec)
 
-    def _store_map(self, rec: "StepRecord") -> None:
+    def _store_map(self, rec: StepRecord) -> None:
+        assert rec.record is not None and rec.record.map is not None  # callers check: only steps with a map
         self.store.add_replay_map(self.run_id, rec.step, encode_map(rec.record.map))
         self._last_map_step = rec.step
 
     def finish(self) -> None:
         """The last step's map (what the agent knew when the run ended)."""
         rec = self._last
-        if rec is not None and rec.record is not None and rec.record.map is not None and self._last_map_step != rec.step:
+        if (
+            rec is not None
+            and rec.record is not None
+            and rec.record.map is not None
+            and self._last_map_step != rec.step
+        ):
             self._store_map(rec)
 
 
 # --- reading --------------------------------------------------------------------------------
 
 
-def replay_marks(steps: list[dict[str, Any]], extras: dict[int, dict[str, Any]]) -> dict[str, Any]:
+def replay_marks(steps: list[dict[str, Any]], extras: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
     """Steps worth jumping to: the first detection, each candidate's rejection, the stop."""
     first = next((s["step"] for s in steps if s.get("goal_detected")), None)
     rejected: list[dict[str, Any]] = []
@@ -177,7 +184,12 @@ def replay_marks(steps: list[dict[str, Any]], extras: dict[int, dict[str, Any]])
                 seen.add(c["id"])
                 rejected.append({"step": s["step"], "candidate": c["id"]})
     stop = steps[-1]["step"] if steps and steps[-1].get("action_name") == "STOP" else None
-    return {"first_detection": first, "candidate_rejected": rejected, "stop": stop, "last": steps[-1]["step"] if steps else None}
+    return {
+        "first_detection": first,
+        "candidate_rejected": rejected,
+        "stop": stop,
+        "last": steps[-1]["step"] if steps else None,
+    }
 
 
 @lru_cache(maxsize=64)
@@ -186,7 +198,7 @@ def _decoded(blob: bytes) -> MapSnapshot:
 
 
 def map_picture(
-    store: "RunStore", run_id: str, step: int, steps: list[dict[str, Any]], extras: dict[str, Any], size_px: int = 480
+    store: RunStore, run_id: str, step: int, steps: list[dict[str, Any]], extras: dict[str, Any], size_px: int = 480
 ) -> np.ndarray | None:
     """The map as the agent knew it at ``step``: the latest snapshot at or before it, with the
     trajectory so far, this step's pose, plan, target and goal points drawn over it."""

@@ -29,14 +29,16 @@ import logging
 import secrets
 import socket
 import struct
-from typing import Any, Awaitable, Callable
+from collections.abc import Awaitable, Callable, MutableMapping
+from typing import Any
 from urllib.parse import urlsplit
 
 logger = logging.getLogger(__name__)
 
-Scope = dict[str, Any]
-Receive = Callable[[], Awaitable[dict[str, Any]]]
-Send = Callable[[dict[str, Any]], Awaitable[None]]
+# ASGI's callables, as Starlette types them (starlette.types), so the middleware composes with its own
+Scope = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
+Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
 
 
 def is_loopback(host: str) -> bool:
@@ -213,10 +215,14 @@ class GuardMiddleware:
         if method not in ("GET", "HEAD", "OPTIONS"):
             origin = headers.get("origin")
             if origin and origin != "null" and not _same_origin(origin, headers.get("host", "")):
-                await _send_json(send, 403, {"code": "cross_origin", "message": f"requests from {origin} are not allowed"})
+                await _send_json(
+                    send, 403, {"code": "cross_origin", "message": f"requests from {origin} are not allowed"}
+                )
                 return
             if origin == "null":
-                await _send_json(send, 403, {"code": "cross_origin", "message": "opaque-origin requests are not allowed"})
+                await _send_json(
+                    send, 403, {"code": "cross_origin", "message": "opaque-origin requests are not allowed"}
+                )
                 return
         if method == "OPTIONS":  # no CORS: pre-flights get nothing that would allow a request
             await _send_json(send, 405, {"code": "no_cors", "message": "cross-origin requests are not supported"})
@@ -232,7 +238,10 @@ class GuardMiddleware:
                 await _send_json(
                     send,
                     413,
-                    {"code": "request_too_large", "message": f"the request is {declared} bytes; the limit is {self.max_bytes}"},
+                    {
+                        "code": "request_too_large",
+                        "message": f"the request is {declared} bytes; the limit is {self.max_bytes}",
+                    },
                 )
                 return
         received = 0
@@ -240,7 +249,7 @@ class GuardMiddleware:
         answered = False
         too_large = {"code": "request_too_large", "message": f"the request exceeds {self.max_bytes} bytes"}
 
-        async def limited_receive() -> dict[str, Any]:
+        async def limited_receive() -> MutableMapping[str, Any]:
             nonlocal received, overflow
             message = await receive()
             if message["type"] == "http.request":
@@ -250,7 +259,7 @@ class GuardMiddleware:
                     raise _TooLarge()
             return message
 
-        async def guarded_send(message: dict[str, Any]) -> None:
+        async def guarded_send(message: MutableMapping[str, Any]) -> None:
             nonlocal answered
             if overflow:
                 # The app's own answer to the aborted read (a 400 or 500) is replaced by a 413.

@@ -26,14 +26,26 @@ logger = logging.getLogger(__name__)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="bind address (default: loopback only)")
     parser.add_argument("--port", type=int, default=8000, help="HTTP port (default: 8000)")
-    parser.add_argument("--data-dir", type=Path, default=Path("data"), help="runs, database and caches (default: ./data)")
-    parser.add_argument("--token", default=os.environ.get("IMGNAV_TOKEN"), help="token for starting/stopping runs (default: generated when not on loopback)")
-    parser.add_argument("--viewer-port", type=int, default=8080, help="port of the live 3D viewer (viser); 0 = any free port")
+    parser.add_argument(
+        "--data-dir", type=Path, default=Path("data"), help="runs, database and caches (default: ./data)"
+    )
+    parser.add_argument(
+        "--token",
+        default=os.environ.get("IMGNAV_TOKEN"),
+        help="token for starting/stopping runs (default: generated when not on loopback)",
+    )
+    parser.add_argument(
+        "--viewer-port", type=int, default=8080, help="port of the live 3D viewer (viser); 0 = any free port"
+    )
     parser.add_argument("--no-viewer", action="store_true", help="do not start the live 3D viewer")
     parser.add_argument("--homes", type=int, default=2, help="number of simulator homes to prepare (default: 2)")
     parser.add_argument("--home-seed", type=int, default=None, help="scene seed of the first simulator home")
-    parser.add_argument("--episodes", type=Path, default=None, help="offer the episodes of this set (imgnav episodes --out DIR) as runs")
-    parser.add_argument("--stretch-host", default=None, help="offer the Stretch backend: the robot's address (stretch_ai bridge)")
+    parser.add_argument(
+        "--episodes", type=Path, default=None, help="offer the episodes of this set (imgnav episodes --out DIR) as runs"
+    )
+    parser.add_argument(
+        "--stretch-host", default=None, help="offer the Stretch backend: the robot's address (stretch_ai bridge)"
+    )
     parser.add_argument("--agent-config", type=Path, default=None, help="agent YAML (default: agent/configs/sim.yaml)")
     parser.add_argument(
         "--allowed-host",

@@ -9,8 +9,9 @@ returning a ``RunSession``. The console owns the loop that joins them
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 

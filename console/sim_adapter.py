@@ -14,9 +14,10 @@ import functools
 import logging
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -48,7 +49,9 @@ def home_fingerprint(seed: int, n_rooms: int) -> str:
     from sim.scene_gen import generate_home
 
     home = generate_home(seed, n_rooms=n_rooms)
-    facts = [(r.name, r.rect_m) for r in home.rooms] + [(o.object_id, o.category, o.variant, o.pose_xy_yaw) for o in home.objects]
+    facts = [(r.name, r.rect_m) for r in home.rooms] + [
+        (o.object_id, o.category, o.variant, o.pose_xy_yaw) for o in home.objects
+    ]
     return hashlib.sha256(repr(facts).encode()).hexdigest()[:16]
 
 
@@ -147,7 +150,9 @@ def build_home_entry(
             room = world.home.rooms[inst.room_index].name
             images = sample_goal_images(world, inst.object_id, views_per_instance, (seed, inst.object_id))
             if not images:
-                logger.info("home %d: no acceptable goal view of instance %d; left out of the gallery", seed, inst.object_id)
+                logger.info(
+                    "home %d: no acceptable goal view of instance %d; left out of the gallery", seed, inst.object_id
+                )
             for v, goal in enumerate(images):
                 rgb = goal.rgb
                 name = f"i{inst.object_id}-v{v}"
@@ -220,7 +225,7 @@ def _metrics(result: Any) -> dict[str, Any]:
         return dict(result)
     import dataclasses
 
-    if dataclasses.is_dataclass(result):
+    if dataclasses.is_dataclass(result) and not isinstance(result, type):
         return dataclasses.asdict(result)
     return {"result": str(result)}
 
@@ -274,7 +279,12 @@ def open_session(
 
 
 def open_episode_session(
-    *, episode: Any, goal_rgb: np.ndarray, max_steps: int, agent_config_path: Path | None, worlds: WorldCache | None = None
+    *,
+    episode: Any,
+    goal_rgb: np.ndarray,
+    max_steps: int,
+    agent_config_path: Path | None,
+    worlds: WorldCache | None = None,
 ) -> SimSession:
     """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
     from sim.backend import SimBackend

@@ -22,7 +22,8 @@ import hashlib
 import logging
 import threading
 from collections import OrderedDict
-from typing import Any, Callable, Hashable
+from collections.abc import Callable, Hashable
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,9 @@ def _read_only(*arrays: np.ndarray | None) -> None:
             a.setflags(write=False)
 
 
-def kept_scoring(worlds: WorldCache, key: tuple, world: Any, goal_instance_id: int, start_pose_world: Any) -> Callable[[], Any]:
+def kept_scoring(
+    worlds: WorldCache, key: tuple, world: Any, goal_instance_id: int, start_pose_world: Any
+) -> Callable[[], Any]:
     """A ``SimBackend`` ``scoring`` callable: the target's ``GoalScoring`` from the start's
     component, computed once per world, target and component. Starts in the same component
     share it (the viewpoints depend on the start only through its component)."""
@@ -127,7 +130,9 @@ def kept_scoring(worlds: WorldCache, key: tuple, world: Any, goal_instance_id: i
     return scoring
 
 
-def kept_start_render(worlds: WorldCache, key: tuple, world: Any, start_pose_world: Any, camera: Any) -> Callable[[], Any]:
+def kept_start_render(
+    worlds: WorldCache, key: tuple, world: Any, start_pose_world: Any, camera: Any
+) -> Callable[[], Any]:
     """A ``SimBackend`` ``start_render`` callable: the frame at the start pose, rendered once
     per world, pose and camera; each call returns a ``Render`` with arrays of its own."""
     from sim.camera import Render

@@ -6,8 +6,9 @@ A leaf module: ``console.sim_provider`` (the backend choice) and ``console.sim_a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,7 +39,7 @@ class HomeEntry:
     gallery: tuple[GalleryItem, ...]
 
     @staticmethod
-    def from_json(d: Mapping[str, Any]) -> "HomeEntry":
+    def from_json(d: Mapping[str, Any]) -> HomeEntry:
         return HomeEntry(
             id=d["id"],
             seed=int(d["seed"]),

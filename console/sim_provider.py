@@ -17,15 +17,17 @@ The simulator-specific calls live in ``console.sim_adapter``.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
 import re
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -152,7 +154,7 @@ class SimProvider:
                     n_rooms=self.config.n_rooms,
                     views_per_instance=self.config.views_per_instance,
                     n_starts=self.config.starts_per_home,
-                    progress=lambda msg: self._log(hub, f"{home_id}: {msg}"),
+                    progress=functools.partial(self._log_home, hub, home_id),
                 )
                 homes.append(entry)
             doc = {"key": self._cache_key(), "homes": [h.to_json() for h in homes]}
@@ -176,6 +178,10 @@ class SimProvider:
         if self._thread is not None:
             self._thread.join(timeout_s)
         return self._ready
+
+    def _log_home(self, hub: Any | None, home_id: str, message: str) -> None:
+        """A home builder's progress line, named by its home."""
+        self._log(hub, f"{home_id}: {message}")
 
     def _log(self, hub: Any | None, message: str, ready: bool = False) -> None:
         logger.info("%s", message)
@@ -206,7 +212,8 @@ class SimProvider:
                 {
                     "id": h.id,
                     "label": h.label,
-                    "starts": [{"id": s.id, "label": s.label} for s in h.starts] + [{"id": "random", "label": "random"}],
+                    "starts": [{"id": s.id, "label": s.label} for s in h.starts]
+                    + [{"id": "random", "label": "random"}],
                     "gallery": [
                         {
                             "item": g.item,
@@ -343,7 +350,9 @@ class SimProvider:
             return 0.0
         first = next(iter(homes.values()))
         t0 = time.perf_counter()
-        self.worlds().warm(("home", first.seed, self.config.n_rooms), lambda: sim_adapter._world(first.seed, self.config.n_rooms))
+        self.worlds().warm(
+            ("home", first.seed, self.config.n_rooms), lambda: sim_adapter._world(first.seed, self.config.n_rooms)
+        )
         seconds = time.perf_counter() - t0
         logger.info("simulator home %s built ahead of the first run in %.1f s", first.id, seconds)
         return seconds
@@ -386,7 +395,9 @@ def _search_start(home: HomeEntry, g: GalleryItem) -> str | None:
     rooms = [s for s in home.starts if s.id.startswith("r")]
     if near is None or not rooms:
         return None
-    far = max(rooms, key=lambda s: math.hypot(s.pose_world[0] - near.pose_world[0], s.pose_world[1] - near.pose_world[1]))
+    far = max(
+        rooms, key=lambda s: math.hypot(s.pose_world[0] - near.pose_world[0], s.pose_world[1] - near.pose_world[1])
+    )
     return far.id
 
 
@@ -419,7 +430,9 @@ def _parse_start(home: HomeEntry, text: str | None) -> Start:
         if not all(math.isfinite(v) for v in (x, y, yaw_deg)):
             raise OptionsError(f"start {text!r} is not finite")
         return Start("custom", f"({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg)", (x, y, math.radians(yaw_deg)))
-    raise OptionsError(f"no start {text!r} in {home.id}; starts are {[s.id for s in home.starts]}, 'random' or 'x,y,yaw_deg'")
+    raise OptionsError(
+        f"no start {text!r} in {home.id}; starts are {[s.id for s in home.starts]}, 'random' or 'x,y,yaw_deg'"
+    )
 
 
 def _check_max_steps(n: int | None) -> int:

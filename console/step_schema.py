@@ -23,8 +23,9 @@ import dataclasses
 import enum
 import json
 import sqlite3
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any
 
 from agent.types import Action
 from console.jsonio import dumps, json_safe
@@ -274,7 +275,9 @@ class StepSchema:
     def record_fields(self, step_json: Mapping[str, Any]) -> dict[str, Any]:
         """``AgentRecord`` keyword arguments from a step's JSON: every field that copies one of
         its attributes (the viewer's replay rebuilds the record the agent gave)."""
-        return {c.agent_attr: step_json[c.name] for c in self.columns if c.agent_attr is not None and c.name in step_json}
+        return {
+            c.agent_attr: step_json[c.name] for c in self.columns if c.agent_attr is not None and c.name in step_json
+        }
 
 
 STEP_SCHEMA = StepSchema.of(StepRow)

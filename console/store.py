@@ -21,8 +21,9 @@ import json
 import logging
 import sqlite3
 import threading
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from console.jsonio import dumps as _dump
 from console.step_schema import STEP_SCHEMA, StepRow, StepSchema
@@ -199,7 +200,8 @@ class RunStore:
         clause = f"WHERE {' AND '.join(where)} " if where else ""
         with self._lock:
             rows = self._db.execute(
-                f"SELECT * FROM runs {clause}ORDER BY created_s DESC LIMIT ? OFFSET ?", (*values, int(limit), int(offset))
+                f"SELECT * FROM runs {clause}ORDER BY created_s DESC LIMIT ? OFFSET ?",
+                (*values, int(limit), int(offset)),
             ).fetchall()
         return [_run_dict(r) for r in rows]
 
@@ -266,7 +268,13 @@ class RunStore:
             b = self._db.execute(
                 "SELECT COALESCE(SUM(LENGTH(map_blob)),0) m, COUNT(*) n FROM replay_maps WHERE run_id=?", (run_id,)
             ).fetchone()
-        return {"frames": int(a["f"]), "extras": int(a["e"]), "steps": int(a["n"]), "maps": int(b["m"]), "n_maps": int(b["n"])}
+        return {
+            "frames": int(a["f"]),
+            "extras": int(a["e"]),
+            "steps": int(a["n"]),
+            "maps": int(b["m"]),
+            "n_maps": int(b["n"]),
+        }
 
     def steps(self, run_id: str) -> list[StepRow]:
         with self._lock:
@@ -279,11 +287,10 @@ class RunStore:
 
 def _run_dict(row: sqlite3.Row) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    for key in row.keys():
+    for key in row.keys():  # noqa: SIM118 - iterating a sqlite3.Row gives its values
         value = row[key]
         if key in _JSON_COLUMNS:
             out[_JSON_COLUMNS[key]] = json.loads(value) if value is not None else None
         else:
             out[key] = value
     return out
-

@@ -8,8 +8,9 @@ never scored: the outcome says whether the agent stopped and why.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -72,6 +73,10 @@ class StretchProvider:
         from robot.config import StretchConfig
 
         agent, agent_config = build_agent(self.agent_deployment)
-        config = StretchConfig(host=self.host) if self.robot_config is None else dataclasses.replace(self.robot_config, host=self.host)
+        config = (
+            StretchConfig(host=self.host)
+            if self.robot_config is None
+            else dataclasses.replace(self.robot_config, host=self.host)
+        )
         backend = StretchBackend(goal_rgb, config)
         return StretchSession(backend, agent, agent_config)

@@ -8,7 +8,8 @@ what happened: "Found it: stopped 0.4 m from the couch after 82 steps, 6.0 m dri
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Mapping
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 # The agent's modes (agent.modes.Mode) as an operator would say them.
 MODE_WORDS: dict[str, str] = {
@@ -70,12 +71,12 @@ def distance_driven_m(steps: Iterable[Mapping[str, Any]]) -> float:
     """Sum of the position changes between consecutive steps (start-relative poses)."""
     total, last = 0.0, None
     for s in steps:
-        xy = (s.get("x_m"), s.get("y_m"))
-        if None in xy:
+        x, y = s.get("x_m"), s.get("y_m")
+        if x is None or y is None:
             continue
         if last is not None:
-            total += math.hypot(xy[0] - last[0], xy[1] - last[1])
-        last = xy
+            total += math.hypot(x - last[0], y - last[1])
+        last = (x, y)
     return total
 
 
@@ -107,9 +108,17 @@ def run_summary(run: Mapping[str, Any], driven_m: float | None = None) -> dict[s
     agent_why = _agent_reason(detail)
 
     if status in ("pending", "running", "stopping"):
-        return {"headline": STATUS_WORDS[status], "sentence": f"{STATUS_WORDS[status]}: {_steps(n)} so far.", "tone": "active"}
+        return {
+            "headline": STATUS_WORDS[status],
+            "sentence": f"{STATUS_WORDS[status]}: {_steps(n)} so far.",
+            "tone": "active",
+        }
     if status == "failed":
-        return {"headline": "Failed", "sentence": f"Failed {tail}: {detail or 'an error ended the run'}.", "tone": "bad"}
+        return {
+            "headline": "Failed",
+            "sentence": f"Failed {tail}: {detail or 'an error ended the run'}.",
+            "tone": "bad",
+        }
     if status == "interrupted":
         return {
             "headline": "Interrupted",
@@ -129,15 +138,31 @@ def run_summary(run: Mapping[str, Any], driven_m: float | None = None) -> dict[s
             sentence += "".join(f", {e}" for e in extras[1:]) + "."
             return {"headline": "Ran out of steps", "sentence": sentence, "tone": "bad"}
         if "gave up" in detail or "exhausted" in detail:
-            return {"headline": "Gave up", "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'}.", "tone": "bad"}
+            return {
+                "headline": "Gave up",
+                "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'}.",
+                "tone": "bad",
+            }
         far = f" {ne:.1f} m from {what}" if isinstance(ne, (int, float)) else ""
         why = f" ({agent_why})" if agent_why else ""
-        return {"headline": "Wrong place", "sentence": f"Stopped{far}, not close enough to it, {tail}{why}.", "tone": "bad"}
+        return {
+            "headline": "Wrong place",
+            "sentence": f"Stopped{far}, not close enough to it, {tail}{why}.",
+            "tone": "bad",
+        }
     # unscored: the target is unknown (a real home, or a photo of something the simulator cannot name)
     if budget:
-        return {"headline": "Ran out of steps", "sentence": f"Ran out of steps {tail} without stopping (not scored).", "tone": "neutral"}
+        return {
+            "headline": "Ran out of steps",
+            "sentence": f"Ran out of steps {tail} without stopping (not scored).",
+            "tone": "neutral",
+        }
     if "gave up" in detail or "exhausted" in detail:
-        return {"headline": "Gave up", "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'} (not scored).", "tone": "neutral"}
+        return {
+            "headline": "Gave up",
+            "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'} (not scored).",
+            "tone": "neutral",
+        }
     why = f": {agent_why}" if agent_why else ""
     return {
         "headline": "Stopped at what it took for the object",

@@ -11,8 +11,8 @@ from starlette.concurrency import run_in_threadpool
 from console.calibration import DEPLOYMENTS, CalibrationInputError, LabelledPhoto, tau_in_force
 from console.context import Console
 from console.deps import ConsoleDep, TokenDep, check_token, error
-from console.photos import PhotoError, decode_photo
 from console.jsonio import json_safe
+from console.photos import PhotoError, decode_photo
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
@@ -32,7 +32,9 @@ def calibration_status(console: ConsoleDep) -> dict[str, Any]:
     return json_safe({d: tau_in_force(console.data_dir, d) for d in DEPLOYMENTS} | {"busy": console.calibrator.busy})
 
 
-@router.post("/{deployment}", status_code=202, summary="Score every pair of the photos and propose tau (runs in the background)")
+@router.post(
+    "/{deployment}", status_code=202, summary="Score every pair of the photos and propose tau (runs in the background)"
+)
 async def start_calibration(
     request: Request,
     console: ConsoleDep,

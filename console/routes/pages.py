@@ -58,4 +58,6 @@ def static_file(name: str) -> FileResponse:
 @router.get("/favicon.ico")
 def favicon() -> FileResponse:
     # An SVG icon (browsers accept it by its content type); a redirect to data: was a console error.
-    return FileResponse(STATIC_DIR / "favicon.svg", media_type="image/svg+xml", headers={"cache-control": "max-age=86400"})
+    return FileResponse(
+        STATIC_DIR / "favicon.svg", media_type="image/svg+xml", headers={"cache-control": "max-age=86400"}
+    )

@@ -13,9 +13,9 @@ from PIL import Image
 from starlette.concurrency import run_in_threadpool
 
 from console.deps import ConsoleDep, TokenDep, error
+from console.jsonio import json_safe
 from console.replay import map_picture, replay_marks
 from console.routes.runs import get_row
-from console.jsonio import json_safe
 from console.words import action_words, mode_words, step_words
 
 router = APIRouter(tags=["replay"])
@@ -60,7 +60,9 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
     )
 
 
-@router.get("/api/runs/{run_id}/replay/latest", summary="The latest recorded step of a run (live view of an active run)")
+@router.get(
+    "/api/runs/{run_id}/replay/latest", summary="The latest recorded step of a run (live view of an active run)"
+)
 def replay_latest(run_id: str, console: ConsoleDep) -> dict[str, Any]:
     get_row(console, run_id)
     step = console.store.replay_latest_step(run_id)

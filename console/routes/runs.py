@@ -13,11 +13,11 @@ from starlette.concurrency import run_in_threadpool
 from console.artifacts import ARTIFACT_NAMES, existing_artifacts, run_dir, valid_run_id
 from console.context import Console
 from console.deps import ConsoleDep, TokenDep, check_token, error
+from console.jsonio import json_safe
 from console.manager import RunConflict
 from console.options import RunForm
 from console.photos import PhotoError, decode_photo
 from console.session import OptionsError, ProviderUnavailable
-from console.jsonio import json_safe
 from console.words import distance_driven_m, run_summary, timing_rows
 
 router = APIRouter(tags=["runs"])
@@ -84,9 +84,13 @@ async def start_run(
     goal_image: Annotated[UploadFile, File(description="the goal photo: JPEG, PNG, WebP or HEIC")],
     backend: Annotated[str | None, Form(description="backend name (default: the simulator)")] = None,
     home: Annotated[str | None, Form(description="simulator home id (default: the first)")] = None,
-    start: Annotated[str | None, Form(description="simulator start: a start id, 'x,y,yaw_deg' in the home frame, or 'random'")] = None,
+    start: Annotated[
+        str | None, Form(description="simulator start: a start id, 'x,y,yaw_deg' in the home frame, or 'random'")
+    ] = None,
     episode: Annotated[str | None, Form(description="simulator episode id (sets home, start and target)")] = None,
-    gallery_item: Annotated[str | None, Form(description="the gallery image the photo was chosen from (makes the target known)")] = None,
+    gallery_item: Annotated[
+        str | None, Form(description="the gallery image the photo was chosen from (makes the target known)")
+    ] = None,
     target_instance: Annotated[str | None, Form(description="the target instance id, if known")] = None,
     max_steps: Annotated[int | None, Form(description="step budget (default and maximum: 1000)")] = None,
     token: Annotated[str | None, Form(description="the console token when it is required")] = None,
@@ -110,7 +114,12 @@ async def start_run(
     except PhotoError as exc:
         raise error(exc.status, exc.code, str(exc)) from None
     form = RunForm.of(
-        home=home, start=start, episode=episode, gallery_item=gallery_item, target_instance=target_instance, max_steps=max_steps
+        home=home,
+        start=start,
+        episode=episode,
+        gallery_item=gallery_item,
+        target_instance=target_instance,
+        max_steps=max_steps,
     )
     t1 = time.perf_counter()
     try:

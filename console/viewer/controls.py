@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import hmac
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,7 +44,9 @@ class StopControls:
         gui = client.gui
         token_box = None
         if self._token is not None:
-            token_box = gui.add_text("Token", initial_value="", hint="the console's token (asked to stop a run)", order=1.0)
+            token_box = gui.add_text(
+                "Token", initial_value="", hint="the console's token (asked to stop a run)", order=1.0
+            )
             uuid = getattr(getattr(token_box, "_impl", None), "uuid", None)
             if uuid:  # mask it: viser's text input has no password type
                 gui.add_html(

@@ -12,7 +12,8 @@ viewer tests that connect with foreign names (tests/unit/console/test_console_vi
 from __future__ import annotations
 
 import logging
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from console.security import host_allowed, origin_allowed
 

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import io
 import threading
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
@@ -86,7 +87,7 @@ class ReplayGui:
     ) -> None:
         if self._folder is not None:
             self._folder.remove()
-        marks = replay_marks(steps, dict(extras))
+        marks = replay_marks(steps, extras)
         gui = self.server.gui
         self._folder = gui.add_folder(f"Replay of run {run_id}", order=5.0)
         with self._folder:

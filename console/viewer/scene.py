@@ -16,7 +16,8 @@ the steps. The caller holds the viewer's handles lock around every method.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -182,7 +183,9 @@ class LiveScene:
             self.depth_img.image = fit_height(depth_rgb(rec.depth_m), h)
         r = rec.record
         if r is not None and not replay:
-            self.match_img.image = match_picture(rec.goal_rgb, rec.rgb, r.matches_goal_xy, r.matches_obs_xy, height_px=h)
+            self.match_img.image = match_picture(
+                rec.goal_rgb, rec.rgb, r.matches_goal_xy, r.matches_obs_xy, height_px=h
+            )
         hist = rec.reid_history
         if hist:
             steps = np.array([s for s, _, _ in hist], np.float64)
@@ -232,7 +235,7 @@ class LiveScene:
         if len(oi):
             xy = snap.ij_to_xy(np.stack([oi, oj], axis=1)).astype(np.float32)
             levels = np.array([0.15, 0.6, 1.05], np.float32)
-            step = max(1, int(math.ceil(len(xy) * len(levels) / self.config.max_obstacle_points)))
+            step = max(1, math.ceil(len(xy) * len(levels) / self.config.max_obstacle_points))
             xy = xy[::step]
             pts = np.concatenate(
                 [np.concatenate([xy, np.full((len(xy), 1), z, np.float32)], axis=1) for z in levels], axis=0

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any, Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -36,13 +37,14 @@ class Viewer:
 
     def __init__(
         self,
-        config: ViewerConfig = ViewerConfig(),
+        config: ViewerConfig | None = None,
         on_stop: Callable[[], str] | None = None,
         token: str | None = None,
         allowed_hosts: Sequence[str] = LOOPBACK_NAMES,
     ) -> None:
         import viser  # heavy import, only when a viewer is wanted
 
+        config = config if config is not None else ViewerConfig()
         self.config = config
         self.server = viser.ViserServer(host=config.host, port=config.port, label="imgnav", verbose=False)
         # Before any client can have finished its handshake: reject foreign Host/Origin.
@@ -99,9 +101,13 @@ class Viewer:
         metrics = ""
         if outcome.metrics:
             shown = {k: v for k, v in outcome.metrics.items() if isinstance(v, (int, float, bool))}
-            metrics = " - " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items())
+            metrics = " - " + ", ".join(
+                f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()
+            )
         with self._handles_lock:
-            self.scene.status.content = f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
+            self.scene.status.content = (
+                f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
+            )
             self.controls.set_enabled(False)
 
     # --- drawing ----------------------------------------------------------------------

@@ -10,7 +10,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from console.session import StepRecord
@@ -24,7 +25,7 @@ class Throttle:
     ``publish(rec, with_map)`` draws a step; whoever publishes (this thread or a direct call)
     ``stamp``s the time first, so the next throttled publish waits out the period from it."""
 
-    def __init__(self, publish: Callable[["StepRecord", bool], None], pose_hz: float, map_hz: float) -> None:
+    def __init__(self, publish: Callable[[StepRecord, bool], None], pose_hz: float, map_hz: float) -> None:
         self._publish = publish
         self._pose_period_s = 1.0 / pose_hz
         self._map_period_s = 1.0 / map_hz
@@ -42,13 +43,13 @@ class Throttle:
         if with_map:
             self.last_map_s = now
 
-    def offer(self, rec: "StepRecord") -> None:
+    def offer(self, rec: StepRecord) -> None:
         """Cheap, never blocks on publishing: the record replaces any pending one."""
         with self._wake:
             self._latest = rec
             self._wake.notify()
 
-    def take(self) -> "StepRecord | None":
+    def take(self) -> StepRecord | None:
         """The pending record, if any, which the thread then does not publish."""
         with self._wake:
             rec, self._latest = self._latest, None
