@@ -4,17 +4,13 @@ and a live console (real simulator, real agent, viser viewer) on a real server."
 from __future__ import annotations
 
 import shutil
-import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
-# The console's test helpers (poll, scripted backend) live with the unit tests: one copy.
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "unit" / "console"))
-
-from console.sim_provider import SimProvider, SimProviderConfig  # noqa: E402
-from console_live import HOME_SEED, LiveServer, sim_console  # noqa: E402
+from console.sim_provider import SimProvider, SimProviderConfig
+from tests.helpers.console_live import HOME_SEED, LiveServer, sim_console
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from console_live import ARTIFACTS, LiveServer, poll
+from tests.helpers.console_live import ARTIFACTS, LiveServer, poll
 
 pytestmark = pytest.mark.browser
 
@@ -152,7 +152,7 @@ def scripted_console(tmp_path: Path):
     step 7, every run; each move takes 0.5 s (the real agent cannot promise a detection)."""
     from console.context import Console, ConsoleConfig
     from console.viewer import ViewerConfig
-    from console_testkit import ScriptedProvider
+    from tests.helpers.console_testkit import ScriptedProvider
 
     console = Console(
         ConsoleConfig(data_dir=tmp_path / "data", viewer=ViewerConfig(port=0)),
@@ -164,7 +164,7 @@ def scripted_console(tmp_path: Path):
 
 
 def test_console_candidates_live_then_replay_in_page_and_viewer(browser, scripted_console: LiveServer, tmp_path: Path) -> None:
-    from console_testkit import encode, textured_rgb
+    from tests.helpers.console_testkit import encode, textured_rgb
 
     p, b = browser
     ARTIFACTS.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from console_live import ARTIFACTS, HOME_SEED, LiveServer, poll
+from tests.helpers.console_live import ARTIFACTS, HOME_SEED, LiveServer, poll
 
 pytestmark = pytest.mark.browser
 

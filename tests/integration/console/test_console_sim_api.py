@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from console_live import HOME_SEED, poll, sim_console
+from tests.helpers.console_live import HOME_SEED, poll, sim_console
 from console.api import create_app
 
 FINAL = ("finished", "stopped", "failed", "interrupted")

@@ -16,7 +16,7 @@ from agent.types import Pose2D
 from console import sim_adapter
 from console.sim_cache import WorldCache
 from console.sim_provider import SimProvider, SimProviderConfig
-from console_live import HOME_SEED
+from tests.helpers.console_live import HOME_SEED
 from sim import backend as sim_backend
 from sim.camera import SIM_CAMERA
 from sim.navigation import GRID_RESOLUTION_M, geodesic_field, instance_viewpoints, reachable_component

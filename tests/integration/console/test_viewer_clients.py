@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from console.viewer import Viewer, ViewerConfig
-from console_live import ARTIFACTS, poll
+from tests.helpers.console_live import ARTIFACTS, poll
 
 pytestmark = pytest.mark.browser
 

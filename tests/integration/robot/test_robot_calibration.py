@@ -18,7 +18,7 @@ from console.context import Console, ConsoleConfig
 from console.providers import build_providers
 from console.stretch_provider import StretchProvider
 from robot.config import StretchConfig
-from test_robot_console import _box_fake, any_photo, client_for, start_run, wait_final
+from tests.helpers.robot_console import any_photo, box_fake, client_for, start_run, wait_final
 
 
 def write_calibration(calibration_dir: Path, tau: float = 6.0, **overrides) -> Path:
@@ -93,7 +93,7 @@ def test_a_stretch_run_records_its_tau_and_where_it_came_from(tmp_path: Path, ca
     data = tmp_path / "data"
     if calibrated:
         write_calibration(data / "calibration", tau=6.0)
-    fake = _box_fake()
+    fake = box_fake()
     obs, action, state = fake.ports
     robot = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0)
     provider = StretchProvider("127.0.0.1", agent_deployment=Deployment("stretch", data / "calibration"), robot_config=robot)

@@ -8,7 +8,6 @@ the robot's final pose in the home must be within 0.1 m of a goal viewpoint (DES
 
 from __future__ import annotations
 
-import io
 import math
 import threading
 import time
@@ -17,62 +16,16 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
-from PIL import Image
 
 from agent.types import VIEWPOINT_SUCCESS_RADIUS_M, Action, Pose2D
-from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.stretch_provider import StretchProvider
-from console.viewer import ViewerConfig
 from robot.config import StretchConfig
-from robot.fake_server import FakeKnobs, FakeStretch
-from robot.fake_world import BoxWorld
+from robot.fake_server import FakeStretch
+from tests.helpers.polling import poll
+from tests.helpers.robot_console import any_photo, box_fake, client_for, start_run, stretch_console, wait_final
 
-FINAL = ("finished", "stopped", "failed", "interrupted")
 HOME_SEED = 0  # the console's simulator home-0 (3 rooms)
-
-
-def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = fn()
-        if until(value):
-            return value
-        assert time.monotonic() < deadline, f"{what} not reached within {timeout_s} s; last value {value!r}"
-        time.sleep(0.05)
-
-
-def png(rgb: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    Image.fromarray(rgb).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def stretch_console(data_dir: Path, fake: FakeStretch, viewer: bool = False, **robot: Any) -> Console:
-    obs, action, state = fake.ports
-    config = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
-    provider = StretchProvider("127.0.0.1", robot_config=config)
-    return Console(ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider})
-
-
-def client_for(console: Console) -> TestClient:
-    """A client that reaches the console by its loopback address (the console checks Host)."""
-    return TestClient(create_app(console), base_url="http://127.0.0.1")
-
-
-def start_run(client: TestClient, goal_rgb: np.ndarray, max_steps: int) -> str:
-    resp = client.post(
-        "/api/runs",
-        files={"goal_image": ("goal.png", png(goal_rgb), "image/png")},
-        data={"backend": "stretch", "max_steps": str(max_steps)},
-    )
-    assert resp.status_code == 201, resp.text
-    return resp.json()["id"]
-
-
-def wait_final(client: TestClient, run_id: str, timeout_s: float) -> dict:
-    return poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in FINAL, timeout_s, "run end")
 
 
 # --- a whole run that reaches the goal ------------------------------------------------
@@ -159,10 +112,6 @@ def test_console_run_on_the_fake_stretch_reaches_the_goal(home_scenario: dict, t
 # --- faults end the run with their reason recorded ------------------------------------
 
 
-def _box_fake(**knobs: Any) -> FakeStretch:
-    return FakeStretch(BoxWorld(start_world=Pose2D(0.0, 0.0, 0.3)), obs_port=0, action_port=0, state_port=0, knobs=FakeKnobs(**knobs)).start()
-
-
 def _after_actions(fake: FakeStretch, n: int, act: Callable[[], None]) -> threading.Thread:
     """Trigger a fault once the fake has handled ``n`` actions (posture and head count)."""
 
@@ -188,7 +137,7 @@ def _after_actions(fake: FakeStretch, n: int, act: Callable[[], None]) -> thread
     ],
 )
 def test_each_fault_fails_the_run_cleanly_with_its_reason(fault, knobs, trigger, reason, tmp_path: Path) -> None:
-    fake = _box_fake(**knobs)
+    fake = box_fake(**knobs)
     console = stretch_console(tmp_path / "data", fake, ack_timeout_s=2.0, resend_interval_s=0.5)
     try:
         if trigger is not None:
@@ -214,10 +163,6 @@ def test_each_fault_fails_the_run_cleanly_with_its_reason(fault, knobs, trigger,
 
 
 # --- how runs end: the agent's own words, and an operator stop that does not wait -----
-
-
-def any_photo() -> np.ndarray:
-    return np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
 
 
 class ScriptedAgent:
@@ -263,7 +208,7 @@ def scripted_console(data_dir: Path, fake: FakeStretch, agent: ScriptedAgent, **
 
 
 def test_an_exhausted_agent_is_recorded_in_its_own_words(tmp_path: Path) -> None:
-    fake = _box_fake()
+    fake = box_fake()
     why = "no reachable frontier and no goal candidate"
     console = scripted_console(tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT, Action.MOVE_FORWARD], "exhausted", why))
     try:
@@ -282,7 +227,7 @@ def test_an_exhausted_agent_is_recorded_in_its_own_words(tmp_path: Path) -> None
 
 
 def test_an_agent_that_stops_at_the_object_says_so(tmp_path: Path) -> None:
-    fake = _box_fake()
+    fake = box_fake()
     why = "within stop radius, facing the goal (confirmed)"
     console = scripted_console(tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT], "stopped", why))
     try:
@@ -298,7 +243,7 @@ def test_an_agent_that_stops_at_the_object_says_so(tmp_path: Path) -> None:
 
 def test_operator_stop_ends_the_run_while_the_robot_drops_acknowledgements(tmp_path: Path) -> None:
     """The ack timeout is far beyond the test's patience: only the stop can end this run."""
-    fake = _box_fake()
+    fake = box_fake()
     agent = ScriptedAgent([Action.TURN_LEFT, Action.TURN_RIGHT] * 50)
     console = scripted_console(tmp_path / "data", fake, agent, ack_timeout_s=10_000.0, resend_interval_s=0.5)
     try:

@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.photos import PhotoLimits
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
 def make(tmp_path: Path, provider: ScriptedProvider, **config: Any) -> tuple[Console, TestClient]:

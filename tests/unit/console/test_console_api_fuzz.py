@@ -17,7 +17,7 @@ from schemathesis.checks import not_a_server_error
 
 from console.api import create_app
 from console.context import Console, ConsoleConfig
-from console_testkit import ScriptedProvider
+from tests.helpers.console_testkit import ScriptedProvider
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from agent.reid.identifier import ReIDConfig
 from console.api import create_app
 from console.calibration import Calibrator
 from console.context import Console, ConsoleConfig
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
 class ColourMatcher:

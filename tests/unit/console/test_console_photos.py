@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from console.photos import PhotoError, PhotoLimits, decode_photo, dhash, hamming
-from console_testkit import encode, textured_rgb
+from tests.helpers.console_testkit import encode, textured_rgb
 
 
 @pytest.mark.parametrize("fmt", ["JPEG", "PNG", "WEBP"])

@@ -16,7 +16,7 @@ from agent.types import MapSnapshot
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.replay import decode_map, encode_map
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.datalock import DataDirLocked
 from console.security import allowed_hosts, host_allowed, is_loopback, token_matches
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
 def test_loopback_detection() -> None:

@@ -20,7 +20,7 @@ from console import agents
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.photos import _max_channel_std, decode_photo
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 PARTS = ("request_s", "prepare_s", "open_s", "setup_s", "reset_s", "first_step_s")
 SUB_PARTS = {

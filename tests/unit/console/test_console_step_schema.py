@@ -34,7 +34,7 @@ from console.step_schema import (
     step_field,
 )
 from console.store import RunStore
-from console_testkit import ScriptedProvider, encode, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 # The console's database as written before the one step schema (console/store.py at e594bfe),
 # copied here on purpose: files written by it must keep opening.

@@ -12,7 +12,7 @@ from agent.types import Action, Pose2D
 from console.session import Outcome, StepRecord
 from console.scene_geometry import camera_rotation, rotation_to_wxyz
 from console.viewer import Viewer, ViewerConfig
-from console_testkit import ScriptedAgent, ScriptedBackend, poll, textured_rgb
+from tests.helpers.console_testkit import ScriptedAgent, ScriptedBackend, poll, textured_rgb
 
 
 def test_camera_rotation_opencv_axes() -> None:

@@ -7,7 +7,6 @@ has to wait for the fake to reach a state it polls with a deadline too.
 from __future__ import annotations
 
 import math
-import time
 from typing import Callable
 
 import numpy as np
@@ -16,15 +15,9 @@ import pytest
 from agent.types import Action, BackendError, Pose2D
 from robot.fake_server import NAV_POSTURE_TILT_RAD, FakeKnobs
 from robot.fake_world import BoxWorld
+from tests.helpers.polling import poll
 
 FWD, LEFT, RIGHT, STOP = Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT, Action.STOP
-
-
-def poll(predicate: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not reached in time"
-        time.sleep(0.01)
 
 
 def run_loop(backend, actions, before_step: Callable[[int], None] | None = None) -> tuple[str | None, int]:

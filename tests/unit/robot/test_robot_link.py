@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import pickle
 import threading
 import time
@@ -16,14 +15,7 @@ from robot.backend import StretchBackend
 from robot.config import StretchConfig
 from robot.link import BridgeLink
 from robot.protocol import move_message
-
-
-class _RunsShell:
-    def __init__(self, marker: str) -> None:
-        self.marker = marker
-
-    def __reduce__(self):
-        return (os.system, (f"touch {self.marker}",))
+from tests.helpers.pickles import RunsShell
 
 
 class RoguePublisher:
@@ -59,7 +51,7 @@ class RoguePublisher:
 
 def test_a_robot_sending_a_code_running_pickle_is_refused_and_the_run_fails_cleanly(tmp_path) -> None:
     marker = tmp_path / "pwned"
-    payload = pickle.dumps({"base_pose": np.zeros(3), "evil": _RunsShell(str(marker))}, protocol=4)
+    payload = pickle.dumps({"base_pose": np.zeros(3), "evil": RunsShell(str(marker))}, protocol=4)
     rogue = RoguePublisher(payload)
     try:
         obs_port, state_port = rogue.ports

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import pickle
 import subprocess
 
@@ -10,6 +9,7 @@ import numpy as np
 import pytest
 
 from robot.safe_pickle import UnsafePickleError, safe_loads
+from tests.helpers.pickles import RunsShell
 
 
 def _robot_like_message() -> dict:
@@ -42,14 +42,6 @@ def test_robot_messages_round_trip_under_every_protocol(protocol: int) -> None:
             assert out[key] == value
 
 
-class _RunsShell:
-    def __init__(self, marker: str) -> None:
-        self.marker = marker
-
-    def __reduce__(self):
-        return (os.system, (f"touch {self.marker}",))
-
-
 class _Popen:
     def __reduce__(self):
         return (subprocess.Popen, (["true"],))
@@ -63,7 +55,7 @@ class _Eval:
 @pytest.mark.parametrize("protocol", [2, 4, 5])
 def test_a_pickle_that_runs_a_shell_command_is_refused_and_nothing_runs(tmp_path, protocol: int) -> None:
     marker = tmp_path / "pwned"
-    data = pickle.dumps({"rgb": np.zeros(3), "evil": _RunsShell(str(marker))}, protocol=protocol)
+    data = pickle.dumps({"rgb": np.zeros(3), "evil": RunsShell(str(marker))}, protocol=protocol)
     with pytest.raises(UnsafePickleError, match="system"):
         safe_loads(data)
     assert not marker.exists()

@@ -5,18 +5,18 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
-import pytest
 
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.sim_provider import SimProvider, SimProviderConfig
 from console.viewer import ViewerConfig
-from console_testkit import poll  # noqa: F401  (re-exported for the integration tests)
+from tests.helpers.artifacts import artifacts_dir
+from tests.helpers.polling import poll as poll  # re-exported for the integration tests
 
 HOME_SEED = 0
-ARTIFACTS = Path(__file__).resolve().parents[3] / "test-artifacts" / "console"
+ARTIFACTS = artifacts_dir("console")  # screenshots: outside the checkout
 
 
 def sim_console(data_dir: Path, viewer: bool = False, **config: Any) -> Console:

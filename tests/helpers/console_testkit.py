@@ -8,7 +8,7 @@ import io
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 from PIL import Image
@@ -25,6 +25,7 @@ from agent.types import (
 )
 from console.options import RunForm
 from console.session import Outcome, OptionsError, ResolvedRun
+from tests.helpers.polling import poll as poll  # re-exported: the console tests import it from here
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,20 +35,6 @@ class ScriptedOptions:
 
     def to_json(self) -> dict[str, Any]:
         return {k: v for k, v in {"max_steps": self.max_steps, "home": self.home}.items() if v is not None}
-
-
-def poll(fn: Callable[[], Any], until: Callable[[Any], bool], timeout_s: float = 30.0, what: str = "condition") -> Any:
-    """Call ``fn`` until ``until(value)``; a deadline, not a sleep, bounds the wait.
-
-    The one copy for the console's tests (the integration helpers import it from here)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = fn()
-        if until(value):
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not reached within {timeout_s} s; last value {value!r}")
-        time.sleep(0.02)
 
 
 def textured_rgb(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:
