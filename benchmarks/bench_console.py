@@ -180,12 +180,14 @@ def bench_first_action(server: Server, runs: int, fresh_runs: int) -> None:
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         # the first run loads the matcher weights: reported apart
         results = pool.submit(first_action_client, server.url, [None] * (runs + 1) + ["random"] * fresh_runs).result()
-    print(f"  cold first run (matcher weights load): upload->first action {results[0][0]['upload_to_first_action_s'] * 1000:.0f} ms")
+    print(
+        f"  cold first run (matcher weights load): upload->first action {results[0][0]['upload_to_first_action_s'] * 1000:.0f} ms"
+    )
     print("  warm: the same photo and start each run (start frame and scoring data kept from the run before)")
-    report_first_action(results[1:runs + 1])
+    report_first_action(results[1 : runs + 1])
     if fresh_runs:
         print("  warm, start 'random' (a new heading each run: its first frame is rendered, not kept)")
-        report_first_action(results[runs + 1:])
+        report_first_action(results[runs + 1 :])
 
 
 def report_first_action(results: list[tuple[dict, list[dict], float | None]]) -> None:
@@ -204,8 +206,11 @@ def report_first_action(results: list[tuple[dict, list[dict], float | None]]) ->
     first = [steps[0]["timings"] for _, steps, _ in results if steps]
     if first:
         keys = [k for k in first[0] if k not in ("step_ms", "total")]
-        print("  first act by agent part (median): "
-              + ", ".join(f"{k} {statistics.median(float(f.get(k) or 0.0) for f in first):.0f}" for k in keys) + " ms")
+        print(
+            "  first act by agent part (median): "
+            + ", ".join(f"{k} {statistics.median(float(f.get(k) or 0.0) for f in first):.0f}" for k in keys)
+            + " ms"
+        )
 
 
 def bench_viewer(data_dir: Path, steps: int) -> None:
@@ -265,7 +270,9 @@ def bench_replay(data_dir: Path, steps: int, opens: int) -> None:
         g = home["gallery"][0]
         png = (data_dir / "sim" / home["id"] / g["url"].rsplit("/", 1)[1]).read_bytes()
         photo = decode_photo(png)
-        resolved = provider.resolve(RunForm(start=g.get("default_start") or "r0", max_steps=steps), photo.dhash, photo.sha256)
+        resolved = provider.resolve(
+            RunForm(start=g.get("default_start") or "r0", max_steps=steps), photo.dhash, photo.sha256
+        )
         run_id = console.manager.start(resolved, photo, png, time.time())
         console.manager.wait(run_id, 3600)
         sizes = console.store.replay_bytes(run_id)
@@ -274,10 +281,14 @@ def bench_replay(data_dir: Path, steps: int, opens: int) -> None:
         maps_per_snapshot = sizes["maps"] / max(sizes["n_maps"], 1)
         # a 1000-step run: 1000 frames and JSONs, 100 cadence maps + first detection + last
         per_1000 = 1000 * (per_step["frames"] + per_step["extras"]) + 102 * maps_per_snapshot
-        print(f"  {n} steps stored: frames {sizes['frames'] / 1e3:.0f} kB, per-step JSON {sizes['extras'] / 1e3:.0f} kB, "
-              f"{sizes['n_maps']} maps {sizes['maps'] / 1e3:.0f} kB")
-        print(f"  per step: thumbnail {per_step['frames'] / 1e3:.1f} kB, JSON {per_step['extras'] / 1e3:.2f} kB; "
-              f"per map snapshot {maps_per_snapshot / 1e3:.1f} kB")
+        print(
+            f"  {n} steps stored: frames {sizes['frames'] / 1e3:.0f} kB, per-step JSON {sizes['extras'] / 1e3:.0f} kB, "
+            f"{sizes['n_maps']} maps {sizes['maps'] / 1e3:.0f} kB"
+        )
+        print(
+            f"  per step: thumbnail {per_step['frames'] / 1e3:.1f} kB, JSON {per_step['extras'] / 1e3:.2f} kB; "
+            f"per map snapshot {maps_per_snapshot / 1e3:.1f} kB"
+        )
         print(f"  replay storage per 1000 steps (extrapolated): {per_1000 / 1e6:.1f} MB")
         client = TestClient(create_app(console, close_on_shutdown=False))
         open_ms, move_ms = [], []
@@ -328,9 +339,11 @@ def bench_calibration(data_dir: Path, objects: int, views: int) -> None:
     calibrator.wait(3600)
     r = job.result
     n_pairs = r["same_pairs"] + r["different_pairs"]
-    print(f"  {len(photos)} photos of {objects} objects, {n_pairs} pairs: {job.seconds:.1f} s "
-          f"(extract {r['extract_ms_per_photo']:.0f} ms per photo, match {r['match_ms_per_pair']:.0f} ms per pair); "
-          f"proposed tau {r['proposal']['tau']:.1f}, max F {r['proposal']['max_f']:.2f}")
+    print(
+        f"  {len(photos)} photos of {objects} objects, {n_pairs} pairs: {job.seconds:.1f} s "
+        f"(extract {r['extract_ms_per_photo']:.0f} ms per photo, match {r['match_ms_per_pair']:.0f} ms per pair); "
+        f"proposed tau {r['proposal']['tau']:.1f}, max F {r['proposal']['max_f']:.2f}"
+    )
 
 
 def bench_stream(server: Server, n_clients: int, n_events: int) -> None:
@@ -369,7 +382,9 @@ def bench_stream(server: Server, n_clients: int, n_events: int) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=5, help="repetitions of the upload benchmark")
-    parser.add_argument("--fresh-runs", type=int, default=3, help="upload repetitions from a random start (start frame rendered)")
+    parser.add_argument(
+        "--fresh-runs", type=int, default=3, help="upload repetitions from a random start (start frame rendered)"
+    )
     parser.add_argument("--clients", type=int, default=20)
     parser.add_argument("--events", type=int, default=100)
     parser.add_argument("--viewer-steps", type=int, default=40)
@@ -377,10 +392,15 @@ def main() -> int:
     parser.add_argument("--replay-opens", type=int, default=5)
     parser.add_argument("--calibration-objects", type=int, default=3)
     parser.add_argument("--calibration-views", type=int, default=3)
-    parser.add_argument("--only", nargs="*", default=None, help="run only these parts: first_action stream viewer replay calibration")
+    parser.add_argument(
+        "--only", nargs="*", default=None, help="run only these parts: first_action stream viewer replay calibration"
+    )
     args = parser.parse_args()
     passive_openmp_wait()  # as `imgnav console` does, before torch is imported
-    want = (lambda part: args.only is None or part in args.only)
+
+    def want(part: str) -> bool:
+        return args.only is None or part in args.only
+
     logging.basicConfig(level=logging.WARNING)
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp)

@@ -30,14 +30,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 SAME_FIELDS = ("success", "spl", "ne", "steps", "path_length_m", "stop_reason", "called_stop", "max_steps_reached")
 
 
-def _eval(ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str],
-          ray_options=None) -> tuple[float, list[dict]]:
+def _eval(
+    ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str], ray_options=None
+) -> tuple[float, list[dict]]:
     from sim.evaluation.cli import add_arguments
     from sim.evaluation.runner import read_records, run_evaluation
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    args = parser.parse_args(["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus), *extra])
+    args = parser.parse_args(
+        ["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus), *extra]
+    )
     t0 = time.perf_counter()
     run_evaluation(ep_dir, agent, args, out, limit=limit, workers=cpus, progress=False, ray=ray_options)
     return time.perf_counter() - t0, read_records(out)
@@ -51,9 +54,11 @@ def main() -> int:
     p.add_argument("--cpus", type=int, default=2)
     p.add_argument("--machines", type=int, nargs="+", default=[1, 2, 5, 10, 25, 50])
     p.add_argument("--json", default=None, help="also write the figures to this file")
-    p.add_argument("--eval-args", default="", help="more `imgnav eval` flags, e.g. \"--modiin-set reid.gate=true\"")
+    p.add_argument("--eval-args", default="", help='more `imgnav eval` flags, e.g. "--modiin-set reid.gate=true"')
     p.add_argument("--repeat", type=int, default=1, help="rounds (the order alternates: local first, then ray first)")
-    p.add_argument("--keep", default=None, help="write the two runs' outputs under this directory (default: a temp dir)")
+    p.add_argument(
+        "--keep", default=None, help="write the two runs' outputs under this directory (default: a temp dir)"
+    )
     args = p.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -100,39 +105,54 @@ def main() -> int:
     local_s = sum(x[0] for x in results["local"]) / args.repeat
     ray_s = sum(x[0] for x in results["ray"]) / args.repeat
     startup_s = sorted(x[2] for x in results["ray"])[args.repeat // 2]
-    local_recs, ray_recs = results["local"][0][1], results["ray"][0][1]
+    local_recs = results["local"][0][1]
 
     n = len(local_recs)
     by_id = {r["episode_id"]: r for r in local_recs}
-    same = sum(all(r[k] == by_id[r["episode_id"]][k] for k in SAME_FIELDS)
-               for run in results["local"] + results["ray"] for r in run[1] if r["episode_id"] in by_id)
+    same = sum(
+        all(r[k] == by_id[r["episode_id"]][k] for k in SAME_FIELDS)
+        for run in results["local"] + results["ray"]
+        for r in run[1]
+        if r["episode_id"] in by_id
+    )
     total = sum(len(run[1]) for run in results["local"] + results["ray"])
     eph_local, eph_ray = 3600 * n / local_s, 3600 * n / ray_s
     eph_ray_startup = 3600 * n / (ray_s + startup_s)
     cost_cpu_s = ray_s * args.cpus / n
     hours = {m: (cost_cpu_s * 1000 / (m * args.cpus) + startup_s) / 3600 for m in args.machines}
     fig = {
-        "agent": args.agent, "eval_args": args.eval_args, "episodes": n, "episode_set": ep_dir, "cpus": args.cpus,
+        "agent": args.agent,
+        "eval_args": args.eval_args,
+        "episodes": n,
+        "episode_set": ep_dir,
+        "cpus": args.cpus,
         "repeat": args.repeat,
-        "local_wall_s": [round(x[0], 1) for x in results["local"]], "ray_wall_s": [round(x[0], 1) for x in results["ray"]],
+        "local_wall_s": [round(x[0], 1) for x in results["local"]],
+        "ray_wall_s": [round(x[0], 1) for x in results["ray"]],
         "ray_startup_s": [round(x[2], 2) for x in results["ray"]],
-        "episodes_per_hour_local": round(eph_local, 1), "episodes_per_hour_ray": round(eph_ray, 1),
+        "episodes_per_hour_local": round(eph_local, 1),
+        "episodes_per_hour_ray": round(eph_ray, 1),
         "episodes_per_hour_ray_with_startup": round(eph_ray_startup, 1),
         "ratio_ray_over_local": round(eph_ray / eph_local, 3),
         "ratio_with_startup": round(eph_ray_startup / eph_local, 3),
-        "records_identical": f"{same}/{total}", "cpu_s_per_episode": round(cost_cpu_s, 1),
+        "records_identical": f"{same}/{total}",
+        "cpu_s_per_episode": round(cost_cpu_s, 1),
         "hours_for_1000_episodes": {str(m): round(h, 2) for m, h in hours.items()},
     }
-    print(f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back, "
-          f"{args.repeat} round(s) in alternating order")
+    print(
+        f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, {args.cpus} CPUs, back to back, "
+        f"{args.repeat} round(s) in alternating order"
+    )
     print("| run | wall per round (s) | episodes/hour (mean wall) |")
     print("| --- | --- | ---: |")
     print(f"| --workers {args.cpus} | {', '.join(f'{x[0]:.1f}' for x in results['local'])} | {eph_local:.1f} |")
     print(f"| --ray local ({args.cpus} CPUs) | {', '.join(f'{x[0]:.1f}' for x in results['ray'])} | {eph_ray:.1f} |")
     print(f"| --ray local incl. start-up | | {eph_ray_startup:.1f} |")
-    print(f"ratio ray/local {eph_ray / eph_local:.3f} (with start-up {eph_ray_startup / eph_local:.3f}); "
-          f"Ray start-up {', '.join(f'{x[2]:.2f}' for x in results['ray'])} s; "
-          f"records equal to the first local run's (metrics, steps, stop reason): {same}/{total}")
+    print(
+        f"ratio ray/local {eph_ray / eph_local:.3f} (with start-up {eph_ray_startup / eph_local:.3f}); "
+        f"Ray start-up {', '.join(f'{x[2]:.2f}' for x in results['ray'])} s; "
+        f"records equal to the first local run's (metrics, steps, stop reason): {same}/{total}"
+    )
     print(f"cost {cost_cpu_s:.1f} CPU-s per episode; 1,000 episodes on N machines of {args.cpus} cores:")
     print("| N | hours |")
     print("| ---: | ---: |")

@@ -35,7 +35,9 @@ def main() -> int:
     from sim.goals import sample_goal_images
     from sim.world import SimWorld
 
-    stats: dict[str, dict[str, list[float]]] = {s: {"iou": [], "precision": [], "recall": []} for s in ("crop", "grabcut")}
+    stats: dict[str, dict[str, list[float]]] = {
+        s: {"iou": [], "precision": [], "recall": []} for s in ("crop", "grabcut")
+    }
     per_cat: dict[str, list[float]] = {}
     t_gc: list[float] = []
     for k in range(args.homes):
@@ -60,7 +62,9 @@ def main() -> int:
     for name, s in stats.items():
         print(f"| {name} | {np.mean(s['iou']):.3f} | {np.mean(s['precision']):.3f} | {np.mean(s['recall']):.3f} |")
     print("| oracle | 1.000 | 1.000 | 1.000 |")
-    print("GrabCut IoU per category: " + ", ".join(f"{c} {np.mean(v):.2f} ({len(v)})" for c, v in sorted(per_cat.items())))
+    print(
+        "GrabCut IoU per category: " + ", ".join(f"{c} {np.mean(v):.2f} ({len(v)})" for c, v in sorted(per_cat.items()))
+    )
     print(f"GrabCut time per goal image: median {statistics.median(t_gc):.0f} ms (runs once per episode)")
     return 0
 

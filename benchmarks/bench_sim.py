@@ -30,6 +30,7 @@ from sim.camera import CameraSpec  # noqa: E402
 from sim.episodes import scene_seed_for  # noqa: E402
 from sim.world import SimWorld  # noqa: E402
 
+
 def _largest_home(candidates: int = 8) -> int:
     """The val home with the most objects among the first few (a representative large home)."""
     from sim.scene_gen import generate_home
@@ -45,7 +46,7 @@ class _Clock:
     """Wall and process-CPU time of a block: on a shared machine the CPU time is close to
     what a quiet machine's wall time would be (rendering is single-threaded)."""
 
-    def __enter__(self) -> "_Clock":
+    def __enter__(self) -> _Clock:
         self.w, self.c = time.perf_counter(), time.process_time()
         return self
 
@@ -57,8 +58,10 @@ def _ms(samples: list[tuple[float, float]]) -> str:
     wall = sorted(s[0] for s in samples)
     cpu = sorted(s[1] for s in samples)
     p90 = wall[min(len(wall) - 1, int(math.ceil(0.9 * len(wall))) - 1)]
-    return (f"median {1000 * statistics.median(wall):8.1f} ms wall ({1000 * statistics.median(cpu):7.1f} ms CPU)"
-            f"   p90 {1000 * p90:8.1f} ms wall   (n={len(wall)})")
+    return (
+        f"median {1000 * statistics.median(wall):8.1f} ms wall ({1000 * statistics.median(cpu):7.1f} ms CPU)"
+        f"   p90 {1000 * p90:8.1f} ms wall   (n={len(wall)})"
+    )
 
 
 def bench_step(world: SimWorld, steps: int) -> list[float]:
@@ -69,7 +72,14 @@ def bench_step(world: SimWorld, steps: int) -> list[float]:
     x, y = grid.ij_to_xy(ij[len(ij) // 2][None])[0]
     backend = SimBackend(world, np.zeros((512, 512, 3), np.uint8), Pose2D(float(x), float(y), 0.3), max_steps=10**6)
     backend.reset()
-    cycle = [Action.MOVE_FORWARD, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.MOVE_FORWARD, Action.TURN_RIGHT, Action.TURN_RIGHT]
+    cycle = [
+        Action.MOVE_FORWARD,
+        Action.MOVE_FORWARD,
+        Action.TURN_LEFT,
+        Action.MOVE_FORWARD,
+        Action.TURN_RIGHT,
+        Action.TURN_RIGHT,
+    ]
     out = []
     for k in range(steps):
         with _Clock() as c:
@@ -123,7 +133,9 @@ def main() -> int:
     print(f"simulator benchmarks (home {SEED}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f})")
     world = SimWorld.from_seed(SEED)
     try:
-        print(f"{len(world.home.rooms)} rooms, {len(world.home.objects)} objects, {len(world.home.materials)} materials")
+        print(
+            f"{len(world.home.rooms)} rooms, {len(world.home.objects)} objects, {len(world.home.materials)} materials"
+        )
         bench_step(world, 5)  # warm up
         print(f"one step (apply + observe 360x640)   {_ms(bench_step(world, args.steps))}")
         print(f"goal render (512x512)                {_ms(bench_goal_render(world, max(args.runs, 8)))}")

@@ -69,7 +69,9 @@ def run_rule(world: SimFakeWorld, n_after: int, n_steps: int, knobs: FakeKnobs) 
                 t1 = time.perf_counter()
                 o = backend.observe()
                 t2 = time.perf_counter()
-                samples.append(Sample(start.compose(o.pose), fake.pose_world, o.camera_tilt_rad, o.depth_m, t1 - t0, t2 - t1))
+                samples.append(
+                    Sample(start.compose(o.pose), fake.pose_world, o.camera_tilt_rad, o.depth_m, t1 - t0, t2 - t1)
+                )
             blocked = sum(m.blocked for m in backend.moves)
     return samples, reset_s, blocked
 
@@ -116,10 +118,17 @@ def main() -> None:
         off, wrong_pose = judge(world, samples)
         stale = [f for f in off if f > 0.01]
         step_ms[rule] = 1000 * med(s.apply_s + s.observe_s for s in samples)
-        print(f"\nrule {rule} (observations_after_echo={RULES[rule]}), faithful fake, {'slow' if args.slow else 'default'} speeds:")
-        print(f"stale observations: {len(stale)} of {len(samples)}" + (
-            f" (depth pixels > 5 cm off: median {100 * med(stale):.0f}%, max {100 * max(stale):.0f}%)" if stale else ""
-        ))
+        print(
+            f"\nrule {rule} (observations_after_echo={RULES[rule]}), faithful fake, {'slow' if args.slow else 'default'} speeds:"
+        )
+        print(
+            f"stale observations: {len(stale)} of {len(samples)}"
+            + (
+                f" (depth pixels > 5 cm off: median {100 * med(stale):.0f}%, max {100 * max(stale):.0f}%)"
+                if stale
+                else ""
+            )
+        )
         print(f"reported pose not the robot's after the step: {sum(wrong_pose)} of {len(samples)}")
         either = sum(f > 0.01 or w for f, w in zip(off, wrong_pose))
         print(f"observations wrong for their step (either): {either} of {len(samples)}")
@@ -128,7 +137,9 @@ def main() -> None:
         print(f"observe:                median {1000 * med(s.observe_s for s in samples):6.1f} ms")
         print(f"step over the protocol: median {step_ms[rule]:6.1f} ms")
     if len(step_ms) == 2:
-        print(f"\nextra time per step for provably fresh observations: {step_ms['new'] - step_ms['old']:+.1f} ms (median)")
+        print(
+            f"\nextra time per step for provably fresh observations: {step_ms['new'] - step_ms['old']:+.1f} ms (median)"
+        )
     world.close()
 
 

@@ -50,7 +50,9 @@ def main() -> int:
                 m.extract(f, 1024)
             per[name].append(1000 * (time.perf_counter() - t) / len(frames))
     med = {k: statistics.median(v) for k, v in per.items()}
-    print(f"XFeat extraction, {len(frames)} frames 360x640, torch threads {args.threads}, {args.runs} rounds alternating")
+    print(
+        f"XFeat extraction, {len(frames)} frames 360x640, torch threads {args.threads}, {args.runs} rounds alternating"
+    )
     for k, v in med.items():
         print(f"  {k:<16} {v:7.1f} ms per frame (median of rounds)")
     print(f"  ratio ours/package {med['ours (dilation)'] / med['package NMS']:.2f}")

@@ -31,8 +31,9 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -167,13 +168,17 @@ class StretchBackend:
         goal = discrete_goal(start, action)
         sent_at = time.monotonic()
         resends: list[int] = []
-        step = self._send_and_wait(lambda s: move_message(goal, s), self.config.ack_timeout_s, f"{action.name}", resends)
+        step = self._send_and_wait(
+            lambda s: move_message(goal, s), self.config.ack_timeout_s, f"{action.name}", resends
+        )
         ack_wait_s = time.monotonic() - sent_at
         end, blocked = self._check_arrival(goal, step)
         self._actions_applied += 1
         report = MoveReport(step, action, start, goal, end, ack_wait_s, time.monotonic() - t0, resends[0], blocked)
         self.moves.append(report)
-        log.debug("step %d %s: ack after %.2f s, end error %.3f m", step, action.name, ack_wait_s, end.distance_to(goal))
+        log.debug(
+            "step %d %s: ack after %.2f s, end error %.3f m", step, action.name, ack_wait_s, end.distance_to(goal)
+        )
 
     def cancel(self, why: str = "the run was stopped") -> None:
         """Make the current and every later wait for the robot end at once with a
@@ -411,9 +416,7 @@ class StretchBackend:
             latest = link.observation
             if first is None:
                 seen = (
-                    "no observation at all"
-                    if latest is None
-                    else f"the latest observation echoes step {latest.step}"
+                    "no observation at all" if latest is None else f"the latest observation echoes step {latest.step}"
                 )
                 why = f"no observation has echoed it ({seen})"
             else:
@@ -473,7 +476,7 @@ class StretchBackend:
 
     # --- context manager ---------------------------------------------------------------
 
-    def __enter__(self) -> "StretchBackend":
+    def __enter__(self) -> StretchBackend:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -28,12 +28,16 @@ log = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_argument_group("world")
-    where.add_argument("--world", choices=("sim", "box"), default="sim", help="PyBullet home (default) or an empty box room")
+    where.add_argument(
+        "--world", choices=("sim", "box"), default="sim", help="PyBullet home (default) or an empty box room"
+    )
     where.add_argument("--scene-seed", type=int, default=0, help="home to generate (with --world sim)")
     where.add_argument("--rooms", type=int, help="rooms of the generated home (the console's simulator homes have 3)")
     where.add_argument("--episodes", help="episode set directory: start where an episode starts")
     where.add_argument("--episode", help="episode id within --episodes")
-    where.add_argument("--start", type=float, nargs=3, metavar=("X", "Y", "YAW"), help="start pose in the home frame (m, m, rad)")
+    where.add_argument(
+        "--start", type=float, nargs=3, metavar=("X", "Y", "YAW"), help="start pose in the home frame (m, m, rad)"
+    )
     net = parser.add_argument_group("network")
     net.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     net.add_argument("--obs-port", type=int, default=OBS_PORT)
@@ -79,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     fake = FakeStretch(
-        world, host=args.host, obs_port=args.obs_port, action_port=args.action_port, state_port=args.state_port, knobs=knobs
+        world,
+        host=args.host,
+        obs_port=args.obs_port,
+        action_port=args.action_port,
+        state_port=args.state_port,
+        knobs=knobs,
     ).start()
     try:
         print(
@@ -103,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
         distance = getattr(world, "distance_to_goal_m", lambda pose: None)(fake.pose_world)
         if distance is not None:
             verdict = "at" if distance <= VIEWPOINT_SUCCESS_RADIUS_M else "not at"
-            print(f"final pose {fake.pose_world}: {distance:.2f} m from the nearest goal viewpoint ({verdict} the goal)", flush=True)
+            print(
+                f"final pose {fake.pose_world}: {distance:.2f} m from the nearest goal viewpoint ({verdict} the goal)",
+                flush=True,
+            )
         world.close()
     return 0

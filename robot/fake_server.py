@@ -134,7 +134,7 @@ class FakeStretch:
 
     # --- lifecycle ---------------------------------------------------------------------
 
-    def start(self) -> "FakeStretch":
+    def start(self) -> FakeStretch:
         self._ctx = zmq.Context()
         obs_sock = self._pub_socket(self._requested_ports[0])
         state_sock = self._pub_socket(self._requested_ports[2])
@@ -171,7 +171,7 @@ class FakeStretch:
         elif self._ctx is not None:
             self._ctx.term()
 
-    def __enter__(self) -> "FakeStretch":
+    def __enter__(self) -> FakeStretch:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

@@ -42,7 +42,7 @@ class SimFakeWorld:
     @classmethod
     def from_seed(
         cls, scene_seed: int, start_world: Pose2D | None = None, n_rooms: int | None = None, rng_seed: int = 0
-    ) -> "SimFakeWorld":
+    ) -> SimFakeWorld:
         """A generated home (``n_rooms`` None: the generator's choice, as ``SimWorld.from_seed``;
         the console's simulator homes use 3); without a start, a random navigable cell well
         away from walls."""
@@ -59,7 +59,7 @@ class SimFakeWorld:
             raise
 
     @classmethod
-    def from_episode(cls, episodes_dir: str | Path, episode_id: str) -> "SimFakeWorld":
+    def from_episode(cls, episodes_dir: str | Path, episode_id: str) -> SimFakeWorld:
         """The home and start pose of one episode of an episode set."""
         from sim.episodes import load_episode_set
         from sim.world import SimWorld

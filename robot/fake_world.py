@@ -107,15 +107,23 @@ class BoxWorld:
                 t = (value - o[axis]) / d[..., axis]
                 p_z = o[2] + t * d[..., 2]
                 valid = (p_z >= 0) & (p_z <= self.wall_height_m)
-                consider(t, valid, lambda p, tint=tint, along=along: checker(p[:, along], p[:, 2], 0.3, tint, (30, 30, 30)))
+                consider(
+                    t, valid, lambda p, tint=tint, along=along: checker(p[:, along], p[:, 2], 0.3, tint, (30, 30, 30))
+                )
             for px, py, half in self.pillars:
                 for axis, value in ((0, px - half), (0, px + half), (1, py - half), (1, py + half)):
                     t = (value - o[axis]) / d[..., axis]
                     p = o + t[..., None] * d
                     other = 1 - axis
                     centre = py if other == 1 else px
-                    valid = (np.abs(p[..., other] - centre) <= half) & (p[..., 2] >= 0) & (p[..., 2] <= self.wall_height_m)
-                    consider(t, valid, lambda q, other=other: checker(q[:, other], q[:, 2], 0.1, (250, 250, 250), (10, 10, 10)))
+                    valid = (
+                        (np.abs(p[..., other] - centre) <= half) & (p[..., 2] >= 0) & (p[..., 2] <= self.wall_height_m)
+                    )
+                    consider(
+                        t,
+                        valid,
+                        lambda q, other=other: checker(q[:, other], q[:, 2], 0.1, (250, 250, 250), (10, 10, 10)),
+                    )
 
         depth = np.where(np.isfinite(t_best) & (t_best <= self.max_depth_m), t_best, 0.0).astype(np.float32)
         rgb = np.clip(colour, 0, 255).astype(np.uint8)

@@ -23,9 +23,9 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class SimOracle:
     """Ground truth about the current run. Frames: ``*_world`` in the home's frame,
     ``*_start`` in the run's start-relative frame (the agent's frame)."""
 
-    def __init__(self, backend: "SimBackend") -> None:
+    def __init__(self, backend: SimBackend) -> None:
         self._b = backend
 
     # --- the robot ---
@@ -133,7 +133,11 @@ class SimOracle:
 
     @property
     def viewpoints_start(self) -> np.ndarray:
-        return self._b.start_pose_world.inverse().transform_xy(self._b.viewpoints_world) if len(self._b.viewpoints_world) else np.zeros((0, 2))
+        return (
+            self._b.start_pose_world.inverse().transform_xy(self._b.viewpoints_world)
+            if len(self._b.viewpoints_world)
+            else np.zeros((0, 2))
+        )
 
     def geodesic_to_goal_m(self, x_world_m: float, y_world_m: float) -> float:
         """Shortest-path distance from a world position to the nearest viewpoint (inf if unreachable)."""
@@ -161,12 +165,21 @@ class SimOracle:
 class SimBackend:
     """One simulated run. The world is shared and not closed by ``close()`` unless ``owns_world``."""
 
-    def __init__(self, world: SimWorld, goal_image: np.ndarray, start_pose_world: Pose2D,
-                 goal_instance_id: int | None = None, viewpoints_xy_m: np.ndarray | None = None,
-                 shortest_path_m: float | None = None, camera: CameraSpec = SIM_CAMERA, max_steps: int = MAX_STEPS,
-                 owns_world: bool = False, episode: Episode | None = None,
-                 scoring: Callable[[], GoalScoring] | None = None,
-                 start_render: Callable[[], Render] | None = None) -> None:
+    def __init__(
+        self,
+        world: SimWorld,
+        goal_image: np.ndarray,
+        start_pose_world: Pose2D,
+        goal_instance_id: int | None = None,
+        viewpoints_xy_m: np.ndarray | None = None,
+        shortest_path_m: float | None = None,
+        camera: CameraSpec = SIM_CAMERA,
+        max_steps: int = MAX_STEPS,
+        owns_world: bool = False,
+        episode: Episode | None = None,
+        scoring: Callable[[], GoalScoring] | None = None,
+        start_render: Callable[[], Render] | None = None,
+    ) -> None:
         """``scoring``: the target's ``GoalScoring`` for this world and start (used only when
         ``goal_instance_id`` is given without ``viewpoints_xy_m``; default: ``goal_scoring``),
         called when first needed. ``start_render``: the frame at the start pose with this
@@ -189,9 +202,13 @@ class SimBackend:
         self._viewpoints: np.ndarray | None = None
         if goal_instance_id is not None and viewpoints_xy_m is None:
             # Only scoring and the oracle read these, never the first action: computed on first use.
-            self._scoring_fn = scoring or (lambda: goal_scoring(world, goal_instance_id, start_component(world, start_pose_world)))
+            self._scoring_fn = scoring or (
+                lambda: goal_scoring(world, goal_instance_id, start_component(world, start_pose_world))
+            )
         else:
-            self._viewpoints = np.zeros((0, 2)) if viewpoints_xy_m is None else np.asarray(viewpoints_xy_m, float).reshape(-1, 2)
+            self._viewpoints = (
+                np.zeros((0, 2)) if viewpoints_xy_m is None else np.asarray(viewpoints_xy_m, float).reshape(-1, 2)
+            )
         self._start_render = start_render
         self._shortest_path_m = shortest_path_m
         self._field: np.ndarray | None = None
@@ -200,13 +217,23 @@ class SimBackend:
         self._reset_state()
 
     @classmethod
-    def for_episode(cls, world: SimWorld, episode: Episode, goal_image: np.ndarray | str | Path, **kw) -> "SimBackend":
+    def for_episode(cls, world: SimWorld, episode: Episode, goal_image: np.ndarray | str | Path, **kw) -> SimBackend:
         """A backend for a stored episode; ``goal_image`` is the array or its PNG path."""
         if world.home.seed != episode.scene_seed:
-            raise ValueError(f"episode {episode.episode_id} is in scene {episode.scene_seed}, world is {world.home.seed}")
+            raise ValueError(
+                f"episode {episode.episode_id} is in scene {episode.scene_seed}, world is {world.home.seed}"
+            )
         img = read_rgb(goal_image) if isinstance(goal_image, (str, Path)) else goal_image
-        return cls(world, img, episode.start_pose_world, episode.goal_instance_id, episode.viewpoints_array(),
-                   episode.geodesic_distance_m, episode=episode, **kw)
+        return cls(
+            world,
+            img,
+            episode.start_pose_world,
+            episode.goal_instance_id,
+            episode.viewpoints_array(),
+            episode.geodesic_distance_m,
+            episode=episode,
+            **kw,
+        )
 
     def _reset_state(self) -> None:
         self.pose_world = self.start_pose_world
@@ -253,11 +280,19 @@ class SimBackend:
             raise BackendError("closed", "backend is closed")
         r = self.current_render()
         # exactly (0, 0, 0) at the start (the Backend contract), not 1e-16 from the frame change
-        pose = Pose2D() if self.pose_world == self.start_pose_world else self.pose_world.relative_to(self.start_pose_world)
+        pose = (
+            Pose2D() if self.pose_world == self.start_pose_world else self.pose_world.relative_to(self.start_pose_world)
+        )
         return Observation(
-            rgb=r.rgb, depth_m=r.depth_m, pose=pose,
-            intrinsics=self.camera.intrinsics, goal_image=self.goal_image, camera_height_m=self.camera.height_m,
-            camera_tilt_rad=self.camera.pitch_rad, step=self.steps, timestamp_s=time.time(),
+            rgb=r.rgb,
+            depth_m=r.depth_m,
+            pose=pose,
+            intrinsics=self.camera.intrinsics,
+            goal_image=self.goal_image,
+            camera_height_m=self.camera.height_m,
+            camera_tilt_rad=self.camera.pitch_rad,
+            step=self.steps,
+            timestamp_s=time.time(),
         )
 
     def apply(self, action: Action) -> None:
@@ -309,7 +344,12 @@ class SimBackend:
             return None
         p = self.pose_world
         return episode_metrics(
-            called_stop=self.called_stop, stop_xy_m=(p.x_m, p.y_m), viewpoints_xy_m=self.viewpoints_world,
-            steps=self.steps, max_steps=self.max_steps, path_length_m=self.path_length_m,
-            shortest_path_m=self.shortest_path_m, stop_geodesic_m=self.oracle.geodesic_to_goal_m(p.x_m, p.y_m),
+            called_stop=self.called_stop,
+            stop_xy_m=(p.x_m, p.y_m),
+            viewpoints_xy_m=self.viewpoints_world,
+            steps=self.steps,
+            max_steps=self.max_steps,
+            path_length_m=self.path_length_m,
+            shortest_path_m=self.shortest_path_m,
+            stop_geodesic_m=self.oracle.geodesic_to_goal_m(p.x_m, p.y_m),
         )

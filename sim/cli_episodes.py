@@ -1,6 +1,6 @@
 """``imgnav episodes``: generate an InstanceImageNav episode set (JSON plus PNG goal images).
 
-    imgnav episodes --split val --seed 0 --count 60 --out data/episodes/val
+imgnav episodes --split val --seed 0 --count 60 --out data/episodes/val
 """
 
 from __future__ import annotations
@@ -35,6 +35,11 @@ def run(args: argparse.Namespace) -> int:
     cats: dict[str, int] = {}
     for e in episodes:
         cats[e.goal_category] = cats.get(e.goal_category, 0) + 1
-    log.info("wrote %d episodes to %s in %.1f s (%s)", len(episodes), args.out, time.perf_counter() - t0,
-             ", ".join(f"{c}: {n}" for c, n in sorted(cats.items())))
+    log.info(
+        "wrote %d episodes to %s in %.1f s (%s)",
+        len(episodes),
+        args.out,
+        time.perf_counter() - t0,
+        ", ".join(f"{c}: {n}" for c, n in sorted(cats.items())),
+    )
     return 0

@@ -101,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
                         tiles.append((f"{inst.object_id}: {inst.category} ({inst.variant})", g.rgb))
                     if not imgs:
                         log.warning("instance %d (%s): no acceptable goal image", inst.object_id, inst.category)
-            _save(out / f"gallery-{args.scene}.png", goal_sheet(tiles) if tiles else np.full((64, 64, 3), 255, np.uint8))
+            _save(
+                out / f"gallery-{args.scene}.png", goal_sheet(tiles) if tiles else np.full((64, 64, 3), 255, np.uint8)
+            )
     if args.episodes is not None:
         from sim.episodes import load_episode_set
 
@@ -116,7 +118,10 @@ def run(args: argparse.Namespace) -> int:
             _save(out / f"goal-{episode.episode_id}.png", es.load_goal_image(episode))
         else:
             chosen = es.episodes[: args.limit]
-            tiles = [(f"{e.episode_id} {e.goal_category} {e.geodesic_distance_m:.1f}m", es.load_goal_image(e)) for e in chosen]
+            tiles = [
+                (f"{e.episode_id} {e.goal_category} {e.geodesic_distance_m:.1f}m", es.load_goal_image(e))
+                for e in chosen
+            ]
             _save(out / "goals.png", goal_sheet(tiles))
             scenes: dict[int, list] = {}
             for e in chosen:

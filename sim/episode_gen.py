@@ -51,7 +51,11 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True, slots=True)
 class EpisodeGenConfig:
     episodes_per_scene: int = 5
-    difficulty_bins_m: tuple[tuple[str, float, float], ...] = (("easy", 1.5, 4.0), ("medium", 4.0, 8.0), ("hard", 8.0, 1e9))
+    difficulty_bins_m: tuple[tuple[str, float, float], ...] = (
+        ("easy", 1.5, 4.0),
+        ("medium", 4.0, 8.0),
+        ("hard", 8.0, 1e9),
+    )
     min_viewpoints: int = 8
     start_attempts: int = 25
     # one episode in this many may have a goal image that also shows a same-category instance
@@ -71,8 +75,16 @@ def _scene_episodes(split: str, set_seed: int, k: int, out_dir: Path, cfg: Episo
         world.close()
 
 
-def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: int, rng: np.random.Generator,
-              out_dir: Path, cfg: EpisodeGenConfig) -> list[Episode]:
+def _generate(
+    world: SimWorld,
+    split: str,
+    set_seed: int,
+    k: int,
+    scene_seed: int,
+    rng: np.random.Generator,
+    out_dir: Path,
+    cfg: EpisodeGenConfig,
+) -> list[Episode]:
     grid = world.navigable_grid(GRID_RESOLUTION_M)
     comp = reachable_component(grid)
     home = world.home
@@ -91,7 +103,7 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
     # starts keep START_CLEARANCE_M beyond the robot's radius from everything (not wedged
     # against a wall or a bed edge), as a robot would be parked
     r = int(round(cfg.start_clearance_m / grid.resolution_m))
-    disc = np.hypot(*np.mgrid[-r:r + 1, -r:r + 1]) <= r + 1e-9
+    disc = np.hypot(*np.mgrid[-r : r + 1, -r : r + 1]) <= r + 1e-9
     start_ok = ndimage.binary_erosion(comp, structure=disc) if r > 0 else comp
     free_ij = np.argwhere(start_ok)
     free_xy = grid.ij_to_xy(free_ij)
@@ -125,14 +137,23 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
             pose = Pose2D(r4(free_xy[c, 0]), r4(free_xy[c, 1]), r4(rng.uniform(-math.pi, math.pi)))
             if world.collides(pose.x_m, pose.y_m):
                 continue
-            plan = plan_to_goal(world.move, pose, goal, lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),
-                                weight=cfg.validate_weight)
+            plan = plan_to_goal(
+                world.move,
+                pose,
+                goal,
+                lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),  # noqa: B023 (used in this iteration)
+                weight=cfg.validate_weight,
+            )
             if plan is None:
                 continue
             geo_m = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
             if cfg.oracle_check and not oracle_solves(world, pose, inst_id, vp, geo_m):
-                log.info("scene %d instance %d: the oracle agent does not solve start %s; trying another",
-                         scene_seed, inst_id, pose)
+                log.info(
+                    "scene %d instance %d: the oracle agent does not solve start %s; trying another",
+                    scene_seed,
+                    inst_id,
+                    pose,
+                )
                 continue
             start = (pose, plan)
             break
@@ -160,18 +181,35 @@ def _generate(world: SimWorld, split: str, set_seed: int, k: int, scene_seed: in
             "goal_variant": obj.variant,
             "euclidean_distance_m": r4(min(math.hypot(pose.x_m - x, pose.y_m - y) for x, y in vp)),
             "lattice_path_m": r4(plan.path_length_m),
-            "goal_camera": {"eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m], "yaw_rad": r4(gi.camera.yaw_rad),
-                            "pitch_rad": r4(gi.camera.pitch_rad), "hfov_deg": r4(gi.camera.hfov_deg)},
+            "goal_camera": {
+                "eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m],
+                "yaw_rad": r4(gi.camera.yaw_rad),
+                "pitch_rad": r4(gi.camera.pitch_rad),
+                "hfov_deg": r4(gi.camera.hfov_deg),
+            },
             "goal_coverage": r4(gi.coverage),
             "goal_shows_distractor": gi.shows_distractor,
         }
-        episodes.append(Episode(episode_id, split, scene_seed, pose, inst_id, obj.category, rel,
-                                tuple((float(x), float(y)) for x, y in vp), geo, info))
+        episodes.append(
+            Episode(
+                episode_id,
+                split,
+                scene_seed,
+                pose,
+                inst_id,
+                obj.category,
+                rel,
+                tuple((float(x), float(y)) for x, y in vp),
+                geo,
+                info,
+            )
+        )
     return episodes
 
 
-def oracle_solves(world: SimWorld, start_world: Pose2D, goal_instance_id: int, viewpoints_xy_m: np.ndarray,
-                  shortest_path_m: float) -> bool:
+def oracle_solves(
+    world: SimWorld, start_world: Pose2D, goal_instance_id: int, viewpoints_xy_m: np.ndarray, shortest_path_m: float
+) -> bool:
     """Whether the shortest-path oracle agent succeeds on this episode, as ``imgnav eval --agent
     oracle`` would run it (same backend, agent and metrics). The oracle never looks at the
     images, so one blank observation stands in for the renders."""
@@ -180,14 +218,22 @@ def oracle_solves(world: SimWorld, start_world: Pose2D, goal_instance_id: int, v
     from sim.oracle_agent import OracleAgent
 
     blank = np.zeros((1, 1, 3), np.uint8)
-    backend = SimBackend(world, blank, start_world, goal_instance_id, np.asarray(viewpoints_xy_m, float), shortest_path_m)
+    backend = SimBackend(
+        world, blank, start_world, goal_instance_id, np.asarray(viewpoints_xy_m, float), shortest_path_m
+    )
     try:
         agent = OracleAgent(backend.oracle)
         agent.reset(blank)
         intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
         while not backend.done:
-            obs = Observation(rgb=blank, depth_m=np.zeros((1, 1), np.float32), pose=Pose2D(), intrinsics=intr,
-                              goal_image=blank, step=backend.steps)
+            obs = Observation(
+                rgb=blank,
+                depth_m=np.zeros((1, 1), np.float32),
+                pose=Pose2D(),
+                intrinsics=intr,
+                goal_image=blank,
+                step=backend.steps,
+            )
             backend.apply(agent.act(obs))
         result = backend.result()
         return bool(result is not None and result.success)
@@ -200,8 +246,15 @@ def _worker(args: tuple[str, int, int, str, EpisodeGenConfig]) -> list[Episode]:
     return _scene_episodes(split, set_seed, k, Path(out_dir), cfg)
 
 
-def generate_episode_set(split: str, seed: int, count: int, out_dir: str | Path, cfg: EpisodeGenConfig = EpisodeGenConfig(),
-                         workers: int = 1, progress: bool = True) -> list[Episode]:
+def generate_episode_set(
+    split: str,
+    seed: int,
+    count: int,
+    out_dir: str | Path,
+    cfg: EpisodeGenConfig = EpisodeGenConfig(),
+    workers: int = 1,
+    progress: bool = True,
+) -> list[Episode]:
     """Generate ``count`` episodes into ``out_dir`` (episodes.json + goals/*.png)."""
     from tqdm import tqdm
 
@@ -232,6 +285,10 @@ def generate_episode_set(split: str, seed: int, count: int, out_dir: str | Path,
     for png in (out / "goals").glob("*.png"):  # goal images of episodes past the count, or stale
         if f"goals/{png.name}" not in keep:
             png.unlink()
-    meta = {"generator_version": GENERATOR_VERSION, "count": len(episodes), "scenes": len({e.scene_seed for e in episodes})}
+    meta = {
+        "generator_version": GENERATOR_VERSION,
+        "count": len(episodes),
+        "scenes": len({e.scene_seed for e in episodes}),
+    }
     save_episode_set(out, split, seed, episodes, meta)
     return episodes

@@ -87,8 +87,11 @@ class Episode:
             "episode_id": self.episode_id,
             "split": self.split,
             "scene_seed": self.scene_seed,
-            "start_pose_world": [r4(self.start_pose_world.x_m), r4(self.start_pose_world.y_m),
-                                 r4(self.start_pose_world.yaw_rad)],
+            "start_pose_world": [
+                r4(self.start_pose_world.x_m),
+                r4(self.start_pose_world.y_m),
+                r4(self.start_pose_world.yaw_rad),
+            ],
             "goal_instance_id": self.goal_instance_id,
             "goal_category": self.goal_category,
             "goal_image": self.goal_image,
@@ -98,15 +101,20 @@ class Episode:
         }
 
     @staticmethod
-    def from_json(d: dict[str, Any]) -> "Episode":
+    def from_json(d: dict[str, Any]) -> Episode:
         try:
             x, y, yaw = d["start_pose_world"]
             return Episode(
-                episode_id=str(d["episode_id"]), split=str(d["split"]), scene_seed=int(d["scene_seed"]),
-                start_pose_world=Pose2D(float(x), float(y), float(yaw)), goal_instance_id=int(d["goal_instance_id"]),
-                goal_category=str(d["goal_category"]), goal_image=str(d["goal_image"]),
+                episode_id=str(d["episode_id"]),
+                split=str(d["split"]),
+                scene_seed=int(d["scene_seed"]),
+                start_pose_world=Pose2D(float(x), float(y), float(yaw)),
+                goal_instance_id=int(d["goal_instance_id"]),
+                goal_category=str(d["goal_category"]),
+                goal_image=str(d["goal_image"]),
                 viewpoints_xy_m=tuple((float(a), float(b)) for a, b in d["viewpoints_xy_m"]),
-                geodesic_distance_m=float(d["geodesic_distance_m"]), info=dict(d.get("info", {})),
+                geodesic_distance_m=float(d["geodesic_distance_m"]),
+                info=dict(d.get("info", {})),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"malformed episode {d.get('episode_id', '?')}: {exc}") from exc
@@ -154,13 +162,23 @@ def write_rgb(path: str | Path, rgb: np.ndarray) -> None:
         raise OSError(f"cannot write image {path}")
 
 
-def episodes_json_text(split: str, seed: int, episodes: list[Episode] | tuple[Episode, ...], meta: dict[str, Any]) -> str:
-    doc = {"format": FORMAT, "version": FORMAT_VERSION, "split": split, "seed": seed, **meta,
-           "episodes": [e.to_json() for e in episodes]}
+def episodes_json_text(
+    split: str, seed: int, episodes: list[Episode] | tuple[Episode, ...], meta: dict[str, Any]
+) -> str:
+    doc = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "split": split,
+        "seed": seed,
+        **meta,
+        "episodes": [e.to_json() for e in episodes],
+    }
     return json.dumps(doc, indent=1, sort_keys=False) + "\n"
 
 
-def save_episode_set(directory: str | Path, split: str, seed: int, episodes: list[Episode], meta: dict[str, Any]) -> Path:
+def save_episode_set(
+    directory: str | Path, split: str, seed: int, episodes: list[Episode], meta: dict[str, Any]
+) -> Path:
     """Write DIR/episodes.json (goal PNGs are written by the generator as it goes)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -182,7 +200,9 @@ def load_episode_set(directory: str | Path) -> EpisodeSet:
     if doc.get("format") != FORMAT:
         raise ValueError(f"{path}: not an imgnav episode set (format {doc.get('format')!r})")
     if doc.get("version") != FORMAT_VERSION:
-        raise ValueError(f"{path}: episode-set version {doc.get('version')} is not supported (expected {FORMAT_VERSION})")
+        raise ValueError(
+            f"{path}: episode-set version {doc.get('version')} is not supported (expected {FORMAT_VERSION})"
+        )
     episodes = tuple(Episode.from_json(e) for e in doc["episodes"])
     meta = {k: v for k, v in doc.items() if k not in ("episodes",)}
     return EpisodeSet(directory, str(doc["split"]), int(doc["seed"]), episodes, meta)

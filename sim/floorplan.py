@@ -31,7 +31,9 @@ def _snap(v: float, step: float = 0.05) -> float:
     return round(round(v / step) * step, 6)
 
 
-def _split(rng: np.random.Generator, rect: tuple[float, float, float, float], n: int) -> list[tuple[float, float, float, float]]:
+def _split(
+    rng: np.random.Generator, rect: tuple[float, float, float, float], n: int
+) -> list[tuple[float, float, float, float]]:
     if n == 1:
         return [rect]
     x0, y0, x1, y1 = rect
@@ -49,7 +51,9 @@ def _split(rng: np.random.Generator, rect: tuple[float, float, float, float], n:
 
 
 def _ok(rects: list[tuple[float, float, float, float]]) -> bool:
-    return all(min(r[2] - r[0], r[3] - r[1]) >= MIN_ROOM_SIDE_M - 1e-6 and max(r[2] - r[0], r[3] - r[1]) <= 7.5 for r in rects)
+    return all(
+        min(r[2] - r[0], r[3] - r[1]) >= MIN_ROOM_SIDE_M - 1e-6 and max(r[2] - r[0], r[3] - r[1]) <= 7.5 for r in rects
+    )
 
 
 def _layout(rng: np.random.Generator, n_rooms: int) -> list[RoomPlan]:
@@ -94,7 +98,9 @@ def _layout(rng: np.random.Generator, n_rooms: int) -> list[RoomPlan]:
     return plans
 
 
-def _shared_wall(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> tuple[str, float, float, float] | None:
+def _shared_wall(
+    a: tuple[float, float, float, float], b: tuple[float, float, float, float]
+) -> tuple[str, float, float, float] | None:
     """(axis, coord, start, end) of the wall two rooms share, or None."""
     eps = 1e-6
     for ax, c_a, c_b, lo, hi in (
@@ -193,7 +199,9 @@ def _walls(plans: list[RoomPlan], doors: list[Door], material: str) -> list[Part
     return parts
 
 
-def generate_floorplan(rng: np.random.Generator, n_rooms: int, wall_material: str) -> tuple[list[RoomPlan], list[Door], list[Part]]:
+def generate_floorplan(
+    rng: np.random.Generator, n_rooms: int, wall_material: str
+) -> tuple[list[RoomPlan], list[Door], list[Part]]:
     plans = _layout(rng, n_rooms)
     doors = _doors(rng, plans)
     return plans, doors, _walls(plans, doors, wall_material)

@@ -13,8 +13,8 @@ real furniture (seat 0.42-0.48 m, table 0.72-0.76 m, bed 0.45-0.6 m).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -47,16 +47,27 @@ def _legs(w, d, h, t, slot, inset=0.03) -> list[LocalPart]:
     return [_box(sx * xs, sy * ys, 0.0, t, t, h, slot) for sx in (-1, 1) for sy in (-1, 1)]
 
 
-def place(parts: list[LocalPart], pose_xy_yaw: tuple[float, float, float], materials: dict[str, str],
-          z_offset_m: float = 0.0) -> tuple[Part, ...]:
+def place(
+    parts: list[LocalPart], pose_xy_yaw: tuple[float, float, float], materials: dict[str, str], z_offset_m: float = 0.0
+) -> tuple[Part, ...]:
     """Local parts -> world ``Part``s at the pose, slots replaced by material keys."""
     x, y, yaw = pose_xy_yaw
     c, s = math.cos(yaw), math.sin(yaw)
     out = []
     for p in parts:
         lx, ly, lz = p.center_xyz_m
-        out.append(Part(p.shape, (x + c * lx - s * ly, y + s * lx + c * ly, lz + z_offset_m), p.size_xyz_m,
-                        yaw + p.yaw_rad, materials[p.slot], p.uv_mode, p.taper, p.solid))
+        out.append(
+            Part(
+                p.shape,
+                (x + c * lx - s * ly, y + s * lx + c * ly, lz + z_offset_m),
+                p.size_xyz_m,
+                yaw + p.yaw_rad,
+                materials[p.slot],
+                p.uv_mode,
+                p.taper,
+                p.solid,
+            )
+        )
     return tuple(out)
 
 
@@ -75,7 +86,10 @@ def chair(rng: np.random.Generator) -> tuple[str, list[LocalPart]]:
     if v == 1:  # wooden slat chair with a seat pad
         w, d = rng.uniform(0.4, 0.48), rng.uniform(0.42, 0.5)
         back_h = rng.uniform(0.4, 0.5)
-        slats = [_box(x, -d / 2 + 0.03, seat_h, 0.05, 0.03, back_h, "wood") for x in np.linspace(-w / 2 + 0.04, w / 2 - 0.04, 4)]
+        slats = [
+            _box(x, -d / 2 + 0.03, seat_h, 0.05, 0.03, back_h, "wood")
+            for x in np.linspace(-w / 2 + 0.04, w / 2 - 0.04, 4)
+        ]
         return "slat", _legs(w, d, seat_h - 0.04, 0.04, "wood") + slats + [
             _box(0, 0, seat_h - 0.04, w, d, 0.04, "wood"),
             _box(0, 0.01, seat_h, w - 0.06, d - 0.08, 0.04, "fabric"),
@@ -166,15 +180,21 @@ def toilet(rng: np.random.Generator) -> tuple[str, list[LocalPart]]:
     tank_w = rng.uniform(0.36, 0.44)
     parts = [_box(0, -0.3, 0.0, tank_w, 0.18, 0.1, "ceramic"), _box(0, -0.3, 0.45, tank_w, 0.18, 0.35, "ceramic")]
     if v == 0:  # round bowl
-        parts += [_cyl(0, 0.0, 0.0, 0.3, 0.4, "ceramic", taper=1.25), _cyl(0, 0.0, 0.4, 0.4, 0.04, "ceramic"),
-                  _box(0, -0.18, 0.1, 0.22, 0.12, 0.3, "ceramic")]
+        parts += [
+            _cyl(0, 0.0, 0.0, 0.3, 0.4, "ceramic", taper=1.25),
+            _cyl(0, 0.0, 0.4, 0.4, 0.04, "ceramic"),
+            _box(0, -0.18, 0.1, 0.22, 0.12, 0.3, "ceramic"),
+        ]
         name = "round"
     elif v == 1:  # square modern
         parts += [_box(0, -0.02, 0.0, 0.36, 0.5, 0.4, "ceramic"), _box(0, -0.02, 0.4, 0.38, 0.52, 0.04, "ceramic")]
         name = "square"
     else:  # seat with a fabric cover (a common real-world keypoint source)
-        parts += [_cyl(0, 0.0, 0.0, 0.32, 0.4, "ceramic", taper=1.2), _box(0, -0.18, 0.1, 0.24, 0.12, 0.3, "ceramic"),
-                  _cyl(0, 0.0, 0.4, 0.42, 0.05, "fabric")]
+        parts += [
+            _cyl(0, 0.0, 0.0, 0.32, 0.4, "ceramic", taper=1.2),
+            _box(0, -0.18, 0.1, 0.24, 0.12, 0.3, "ceramic"),
+            _cyl(0, 0.0, 0.4, 0.42, 0.05, "fabric"),
+        ]
         name = "covered"
     return name, parts
 
@@ -186,7 +206,9 @@ def potted_plant(rng: np.random.Generator) -> tuple[str, list[LocalPart]]:
     parts = [_cyl(0, 0, 0.0, pot_d, pot_h, "pot", taper=rng.uniform(1.1, 1.3))]
     if v == 0:  # bush
         r = rng.uniform(0.3, 0.45)
-        parts.append(LocalPart("ellipsoid", (0, 0, pot_h + r * 0.8), (2 * r, 2 * r, 2 * r * rng.uniform(0.9, 1.3)), "leaves"))
+        parts.append(
+            LocalPart("ellipsoid", (0, 0, pot_h + r * 0.8), (2 * r, 2 * r, 2 * r * rng.uniform(0.9, 1.3)), "leaves")
+        )
         return "bush", parts
     if v == 1:  # tall column plant
         r = rng.uniform(0.22, 0.32)
@@ -196,12 +218,18 @@ def potted_plant(rng: np.random.Generator) -> tuple[str, list[LocalPart]]:
     # a tree: trunk and several foliage balls
     trunk_h = rng.uniform(0.6, 1.0)
     parts.append(_cyl(0, 0, pot_h, 0.05, trunk_h, "wood"))
-    for k in range(int(rng.integers(2, 5))):
+    for _ in range(int(rng.integers(2, 5))):
         a = rng.uniform(0, 2 * math.pi)
         r = rng.uniform(0.18, 0.28)
         off = rng.uniform(0.0, 0.15)
-        parts.append(LocalPart("ellipsoid", (off * math.cos(a), off * math.sin(a), pot_h + trunk_h + rng.uniform(-0.15, 0.25)),
-                               (2 * r, 2 * r, 2 * r), "leaves"))
+        parts.append(
+            LocalPart(
+                "ellipsoid",
+                (off * math.cos(a), off * math.sin(a), pot_h + trunk_h + rng.uniform(-0.15, 0.25)),
+                (2 * r, 2 * r, 2 * r),
+                "leaves",
+            )
+        )
     return "tree", parts
 
 
@@ -210,8 +238,10 @@ def tv(rng: np.random.Generator, wall_mounted: bool) -> tuple[str, list[LocalPar
     w = rng.uniform(0.75, 1.45)
     h = w * 9 / 16
     depth = 0.06
-    parts = [_box(0, 0, 0.04 if not wall_mounted else 0.0, w + 0.04, depth, h + 0.04, "plastic"),
-             _box(0, depth / 2 + 0.004, (0.04 if not wall_mounted else 0.0) + 0.02, w, 0.01, h, "screen", uv_mode="fit")]
+    parts = [
+        _box(0, 0, 0.04 if not wall_mounted else 0.0, w + 0.04, depth, h + 0.04, "plastic"),
+        _box(0, depth / 2 + 0.004, (0.04 if not wall_mounted else 0.0) + 0.02, w, 0.01, h, "screen", uv_mode="fit"),
+    ]
     if wall_mounted:
         return "wall-mounted", parts
     parts += [_box(0, 0, 0.0, w * 0.35, 0.2, 0.015, "plastic"), _box(0, -0.01, 0.015, 0.06, 0.04, 0.05, "plastic")]
@@ -228,8 +258,11 @@ def table(rng: np.random.Generator, w: float, d: float, h: float) -> list[LocalP
 def shelf(rng: np.random.Generator) -> list[LocalPart]:
     w, d, h = rng.uniform(0.6, 1.2), rng.uniform(0.3, 0.4), rng.uniform(0.8, 1.9)
     n = max(2, int(h / 0.35))
-    parts = [_box(-w / 2 + 0.01, 0, 0, 0.02, d, h, "wood"), _box(w / 2 - 0.01, 0, 0, 0.02, d, h, "wood"),
-             _box(0, -d / 2 + 0.01, 0, w, 0.02, h, "wood")]
+    parts = [
+        _box(-w / 2 + 0.01, 0, 0, 0.02, d, h, "wood"),
+        _box(w / 2 - 0.01, 0, 0, 0.02, d, h, "wood"),
+        _box(0, -d / 2 + 0.01, 0, w, 0.02, h, "wood"),
+    ]
     for k in range(n + 1):
         z = k * (h - 0.02) / n
         parts.append(_box(0, 0, z, w, d, 0.02, "wood"))
@@ -238,7 +271,9 @@ def shelf(rng: np.random.Generator) -> list[LocalPart]:
             while x < w / 2 - 0.12:
                 bw = rng.uniform(0.03, 0.08)
                 bh = rng.uniform(0.18, 0.3)
-                parts.append(_box(x + bw / 2, 0.0, z + 0.02, bw, d * 0.8, min(bh, (h - 0.02) / n - 0.04), "books", solid=True))
+                parts.append(
+                    _box(x + bw / 2, 0.0, z + 0.02, bw, d * 0.8, min(bh, (h - 0.02) / n - 0.04), "books", solid=True)
+                )
                 x += bw + rng.uniform(0.0, 0.06)
     return parts
 
@@ -262,13 +297,19 @@ def counter(rng: np.random.Generator, w: float) -> list[LocalPart]:
 
 def fridge(rng: np.random.Generator) -> list[LocalPart]:
     w = rng.uniform(0.6, 0.75)
-    return [_box(0, 0, 0, w, 0.65, rng.uniform(1.7, 1.9), "metal"), _box(w / 2 - 0.08, 0.34, 0.9, 0.03, 0.04, 0.5, "plastic")]
+    return [
+        _box(0, 0, 0, w, 0.65, rng.uniform(1.7, 1.9), "metal"),
+        _box(w / 2 - 0.08, 0.34, 0.9, 0.03, 0.04, 0.5, "plastic"),
+    ]
 
 
 def floor_lamp(rng: np.random.Generator) -> list[LocalPart]:
     h = rng.uniform(1.4, 1.7)
-    return [_cyl(0, 0, 0, 0.3, 0.03, "metal"), _cyl(0, 0, 0.03, 0.03, h - 0.33, "metal"),
-            _cyl(0, 0, h - 0.3, 0.4, 0.3, "fabric", taper=0.6)]
+    return [
+        _cyl(0, 0, 0, 0.3, 0.03, "metal"),
+        _cyl(0, 0, 0.03, 0.03, h - 0.33, "metal"),
+        _cyl(0, 0, h - 0.3, 0.4, 0.3, "fabric", taper=0.6),
+    ]
 
 
 def rug(rng: np.random.Generator, w: float, d: float) -> list[LocalPart]:
@@ -279,8 +320,7 @@ def picture(rng: np.random.Generator, w: float, aspect: float) -> list[LocalPart
     """A framed picture; local origin at the bottom centre of the frame, the picture facing +y."""
     h = w * aspect
     t = rng.uniform(0.025, 0.05)
-    return [_box(0, 0, 0, w + 2 * t, 0.03, h + 2 * t, "wood"),
-            _box(0, 0.016, t, w, 0.004, h, "picture", uv_mode="fit")]
+    return [_box(0, 0, 0, w + 2 * t, 0.03, h + 2 * t, "wood"), _box(0, 0.016, t, w, 0.004, h, "picture", uv_mode="fit")]
 
 
 def vanity(rng: np.random.Generator) -> list[LocalPart]:
@@ -293,9 +333,13 @@ def vanity(rng: np.random.Generator) -> list[LocalPart]:
 
 def bathtub(rng: np.random.Generator) -> list[LocalPart]:
     w, d = rng.uniform(1.5, 1.7), rng.uniform(0.7, 0.8)
-    return [_box(0, -d / 2 + 0.04, 0, w, 0.08, 0.55, "ceramic"), _box(0, d / 2 - 0.04, 0, w, 0.08, 0.55, "ceramic"),
-            _box(-w / 2 + 0.04, 0, 0, 0.08, d, 0.55, "ceramic"), _box(w / 2 - 0.04, 0, 0, 0.08, d, 0.55, "ceramic"),
-            _box(0, 0, 0, w, d, 0.1, "ceramic")]
+    return [
+        _box(0, -d / 2 + 0.04, 0, w, 0.08, 0.55, "ceramic"),
+        _box(0, d / 2 - 0.04, 0, w, 0.08, 0.55, "ceramic"),
+        _box(-w / 2 + 0.04, 0, 0, 0.08, d, 0.55, "ceramic"),
+        _box(w / 2 - 0.04, 0, 0, 0.08, d, 0.55, "ceramic"),
+        _box(0, 0, 0, w, d, 0.1, "ceramic"),
+    ]
 
 
 def wall_panel(w: float, h: float) -> list[LocalPart]:
@@ -304,5 +348,9 @@ def wall_panel(w: float, h: float) -> list[LocalPart]:
 
 
 GOAL_BUILDERS: dict[str, Callable[[np.random.Generator], tuple[str, list[LocalPart]]]] = {
-    "chair": chair, "couch": couch, "bed": bed, "toilet": toilet, "potted plant": potted_plant,
+    "chair": chair,
+    "couch": couch,
+    "bed": bed,
+    "toilet": toilet,
+    "potted plant": potted_plant,
 }

@@ -184,7 +184,12 @@ class FootprintIndex:
             self._build_fast_path()
         i = int((y_m - self.bounds_xy_m[1]) / self._fast_res)
         j = int((x_m - self.bounds_xy_m[0]) / self._fast_res)
-        if 0 <= i < len(self._lower) and 0 <= j < len(self._lower[0]) and y_m >= self.bounds_xy_m[1] and x_m >= self.bounds_xy_m[0]:
+        if (
+            0 <= i < len(self._lower)
+            and 0 <= j < len(self._lower[0])
+            and y_m >= self.bounds_xy_m[1]
+            and x_m >= self.bounds_xy_m[0]
+        ):
             return self._lower[i][j]
         return 0.0
 

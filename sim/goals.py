@@ -86,8 +86,14 @@ def _propose(rng: np.random.Generator, obj, cfg: GoalSamplerConfig) -> tuple[np.
     return eye, np.array([cx, cy, cz]) + jitter, float(rng.uniform(*cfg.hfov_deg))
 
 
-def sample_goal_images(world, instance_id: int, count: int, seed: int | tuple[int, ...],
-                       cfg: GoalSamplerConfig = GoalSamplerConfig(), distractor_budget: int | None = None) -> list[GoalImage]:
+def sample_goal_images(
+    world,
+    instance_id: int,
+    count: int,
+    seed: int | tuple[int, ...],
+    cfg: GoalSamplerConfig = GoalSamplerConfig(),
+    distractor_budget: int | None = None,
+) -> list[GoalImage]:
     """Up to ``count`` accepted goal images of one instance (fewer if the attempts run out).
 
     Deterministic in ``seed``. ``distractor_budget``: how many of them may show another
@@ -112,8 +118,12 @@ def sample_goal_images(world, instance_id: int, count: int, seed: int | tuple[in
         eye_room = world.home.room_at(float(eye[0]), float(eye[1]))
         if eye_index.collides(float(eye[0]), float(eye[1])) or eye_room is None:
             continue
-        if home_room is not None and eye_room is not home_room and not home_room.contains(float(eye[0]), float(eye[1])) \
-                and attempt < cfg.same_room_share * attempts:
+        if (
+            home_room is not None
+            and eye_room is not home_room
+            and not home_room.contains(float(eye[0]), float(eye[1]))
+            and attempt < cfg.same_room_share * attempts
+        ):
             continue  # people photograph an object from its own room; through a doorway only if they must
         hits = world.ray_objects(np.repeat(eye[None], len(targets), axis=0), targets)
         if np.mean(hits == instance_id) < cfg.min_visible_rays:

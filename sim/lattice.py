@@ -18,8 +18,8 @@ from __future__ import annotations
 import heapq
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -45,7 +45,9 @@ class ViewpointGoal:
     the stop position is a success whatever the rounding. Viewpoints are bucketed in cells
     of the radius, so a query looks at the 3 x 3 cells around it."""
 
-    def __init__(self, viewpoints_xy_m: np.ndarray, radius_m: float = VIEWPOINT_SUCCESS_RADIUS_M, margin_m: float = 1e-4) -> None:
+    def __init__(
+        self, viewpoints_xy_m: np.ndarray, radius_m: float = VIEWPOINT_SUCCESS_RADIUS_M, margin_m: float = 1e-4
+    ) -> None:
         self.radius_m = radius_m - margin_m
         self._cell = radius_m
         self._buckets: dict[tuple[int, int], list[tuple[float, float]]] = {}
@@ -105,7 +107,11 @@ def plan_to_goal(
         if expansions > max_expansions:
             log.debug("lattice search gave up after %d expansions", expansions)
             return None
-        for action, cost in ((Action.MOVE_FORWARD, FORWARD_STEP_M), (Action.TURN_LEFT, TURN_COST), (Action.TURN_RIGHT, TURN_COST)):
+        for action, cost in (
+            (Action.MOVE_FORWARD, FORWARD_STEP_M),
+            (Action.TURN_LEFT, TURN_COST),
+            (Action.TURN_RIGHT, TURN_COST),
+        ):
             nxt, moved = move(pose, action)
             if not moved:
                 continue

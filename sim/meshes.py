@@ -31,7 +31,7 @@ class Mesh:
     indices: np.ndarray
 
     @staticmethod
-    def merge(meshes: list["Mesh"]) -> "Mesh":
+    def merge(meshes: list[Mesh]) -> Mesh:
         offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
         return Mesh(
             np.concatenate([m.vertices for m in meshes]),
@@ -40,7 +40,7 @@ class Mesh:
             np.concatenate([m.indices + o for m, o in zip(meshes, offsets)]).astype(np.int32),
         )
 
-    def transformed(self, center_xyz: tuple[float, float, float], yaw_rad: float) -> "Mesh":
+    def transformed(self, center_xyz: tuple[float, float, float], yaw_rad: float) -> Mesh:
         c, s = math.cos(yaw_rad), math.sin(yaw_rad)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return Mesh(self.vertices @ rot.T + np.asarray(center_xyz), self.normals @ rot.T, self.uvs, self.indices)
@@ -79,22 +79,41 @@ def _cuts(start: float, length: float, tile: float, max_cell: float = math.inf) 
     return out
 
 
-def _face(origin: np.ndarray, u_axis: np.ndarray, v_axis: np.ndarray, ul: float, vl: float, tile: float,
-          normal, corners: list, normals: list, uvs: list, offset: tuple[float, float] = (0.0, 0.0),
-          max_cell: float = math.inf) -> None:
+def _face(
+    origin: np.ndarray,
+    u_axis: np.ndarray,
+    v_axis: np.ndarray,
+    ul: float,
+    vl: float,
+    tile: float,
+    normal,
+    corners: list,
+    normals: list,
+    uvs: list,
+    offset: tuple[float, float] = (0.0, 0.0),
+    max_cell: float = math.inf,
+) -> None:
     """A rectangle cut into tile cells, each with UVs inside [0, 1]; ``offset`` shifts the pattern (metres)."""
     us, vs = _cuts(offset[0], ul, tile, max_cell), _cuts(offset[1], vl, tile, max_cell)
     for u0, u1 in zip(us[:-1], us[1:]):
         for v0, v1 in zip(vs[:-1], vs[1:]):
-            p = [origin + u_axis * (a - offset[0]) + v_axis * (b - offset[1]) for a, b in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))]
+            p = [
+                origin + u_axis * (a - offset[0]) + v_axis * (b - offset[1])
+                for a, b in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))
+            ]
             corners.append(np.stack(p))
             normals.append(normal)
             fu, fv = math.floor(u0 / tile + 1e-9), math.floor(v0 / tile + 1e-9)
             uvs.append(np.array([[u0, v0], [u1, v0], [u1, v1], [u0, v1]]) / tile - [fu, fv])
 
 
-def box(size_xyz: tuple[float, float, float], tile_m: float, uv_mode: str = "world",
-        uv_offset_m: tuple[float, float] = (0.0, 0.0), max_cell_m: float = MAX_CELL_M) -> Mesh:
+def box(
+    size_xyz: tuple[float, float, float],
+    tile_m: float,
+    uv_mode: str = "world",
+    uv_offset_m: tuple[float, float] = (0.0, 0.0),
+    max_cell_m: float = MAX_CELL_M,
+) -> Mesh:
     """An axis-aligned box centred at the origin; ``uv_offset_m`` shifts where the pattern starts."""
     hx, hy, hz = (s / 2.0 for s in size_xyz)
     sx, sy, sz = size_xyz
@@ -143,8 +162,16 @@ def cylinder(radius_m: float, height_m: float, tile_m: float, top_scale: float =
         u0, u1 = (k % per_tile) / per_tile, (k % per_tile + 1) / per_tile
         for z0, z1 in zip(rows[:-1], rows[1:]):
             ra, rb = r0 + (r1 - r0) * z0 / height_m, r0 + (r1 - r0) * z1 / height_m
-            corners.append(np.array([[ca * ra, sa * ra, z0 - hz], [cb * ra, sb * ra, z0 - hz],
-                                     [cb * rb, sb * rb, z1 - hz], [ca * rb, sa * rb, z1 - hz]]))
+            corners.append(
+                np.array(
+                    [
+                        [ca * ra, sa * ra, z0 - hz],
+                        [cb * ra, sb * ra, z0 - hz],
+                        [cb * rb, sb * rb, z1 - hz],
+                        [ca * rb, sa * rb, z1 - hz],
+                    ]
+                )
+            )
             normals.append(nrm)
             f = math.floor(z0 / tile_m + 1e-9)
             v0, v1 = z0 / tile_m - f, z1 / tile_m - f
@@ -159,13 +186,24 @@ def cylinder(radius_m: float, height_m: float, tile_m: float, top_scale: float =
             a, b = 1 + k, 1 + (k + 1) % segments
             tri += [0, a, b] if sign > 0 else [0, b, a]
         scale = max(tile_m, 2.02 * r)
-        caps.append(Mesh(verts, np.tile([0.0, 0.0, sign], (len(verts), 1)),
-                         np.clip(0.5 + verts[:, :2] / scale, 0.0, _UV_MAX), np.array(tri, np.int32)))
+        caps.append(
+            Mesh(
+                verts,
+                np.tile([0.0, 0.0, sign], (len(verts), 1)),
+                np.clip(0.5 + verts[:, :2] / scale, 0.0, _UV_MAX),
+                np.array(tri, np.int32),
+            )
+        )
     return Mesh.merge([side] + caps)
 
 
-def ellipsoid(radii_xyz: tuple[float, float, float], tile_m: float, rings: int = 6, segments: int = 10,
-              jitter: np.ndarray | None = None) -> Mesh:
+def ellipsoid(
+    radii_xyz: tuple[float, float, float],
+    tile_m: float,
+    rings: int = 6,
+    segments: int = 10,
+    jitter: np.ndarray | None = None,
+) -> Mesh:
     """A low-poly ellipsoid centred at the origin; ``jitter`` (rings+1, segments) scales radii for lumpy foliage.
 
     Every quad has its own vertices so its UVs can stay inside [0, 1] (a whole
@@ -175,8 +213,10 @@ def ellipsoid(radii_xyz: tuple[float, float, float], tile_m: float, rings: int =
     phi = np.linspace(0.0, 2.0 * math.pi, segments + 1)
     scale = np.ones((rings + 1, segments + 1)) if jitter is None else np.concatenate([jitter, jitter[:, :1]], axis=1)
     st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    pts = np.stack([rx * st * np.cos(phi) * scale, ry * st * np.sin(phi) * scale,
-                    np.broadcast_to(rz * ct, scale.shape) * scale], axis=-1)
+    pts = np.stack(
+        [rx * st * np.cos(phi) * scale, ry * st * np.sin(phi) * scale, np.broadcast_to(rz * ct, scale.shape) * scale],
+        axis=-1,
+    )
     nrm = pts / np.maximum(np.array([rx, ry, rz]) ** 2, 1e-9)
     nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
     mean_r = (rx + ry + rz) / 3.0

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -52,9 +53,16 @@ def nearest_viewpoint_distance_m(xy_m: tuple[float, float], viewpoints_xy_m: np.
     return float(np.min(np.hypot(vp[:, 0] - xy_m[0], vp[:, 1] - xy_m[1])))
 
 
-def is_success(called_stop: bool, stop_xy_m: tuple[float, float], viewpoints_xy_m: np.ndarray,
-               radius_m: float = VIEWPOINT_SUCCESS_RADIUS_M) -> bool:
-    return bool(called_stop) and nearest_viewpoint_distance_m(stop_xy_m, viewpoints_xy_m) <= radius_m + BOUNDARY_TOLERANCE_M
+def is_success(
+    called_stop: bool,
+    stop_xy_m: tuple[float, float],
+    viewpoints_xy_m: np.ndarray,
+    radius_m: float = VIEWPOINT_SUCCESS_RADIUS_M,
+) -> bool:
+    return (
+        bool(called_stop)
+        and nearest_viewpoint_distance_m(stop_xy_m, viewpoints_xy_m) <= radius_m + BOUNDARY_TOLERANCE_M
+    )
 
 
 def spl(success: bool, shortest_path_m: float, path_length_m: float) -> float:
@@ -65,8 +73,17 @@ def spl(success: bool, shortest_path_m: float, path_length_m: float) -> float:
     return 1.0 if denom <= 0.0 else shortest_path_m / denom
 
 
-def episode_metrics(*, called_stop: bool, stop_xy_m: tuple[float, float], viewpoints_xy_m: np.ndarray, steps: int,
-                    max_steps: int, path_length_m: float, shortest_path_m: float, stop_geodesic_m: float) -> EpisodeMetrics:
+def episode_metrics(
+    *,
+    called_stop: bool,
+    stop_xy_m: tuple[float, float],
+    viewpoints_xy_m: np.ndarray,
+    steps: int,
+    max_steps: int,
+    path_length_m: float,
+    shortest_path_m: float,
+    stop_geodesic_m: float,
+) -> EpisodeMetrics:
     ok = is_success(called_stop, stop_xy_m, viewpoints_xy_m)
     return EpisodeMetrics(
         success=ok,
@@ -84,8 +101,13 @@ def episode_metrics(*, called_stop: bool, stop_xy_m: tuple[float, float], viewpo
 BOOTSTRAP_RESAMPLES = 2000
 
 
-def bootstrap_ci(values: Iterable[float], groups: Iterable[Any], level: float = 0.95,
-                 resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0) -> tuple[float, float]:
+def bootstrap_ci(
+    values: Iterable[float],
+    groups: Iterable[Any],
+    level: float = 0.95,
+    resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = 0,
+) -> tuple[float, float]:
     """Percentile-bootstrap interval of the mean of ``values`` (one per episode) over resampled
     ``groups`` (homes): each resample draws as many homes as there are, with replacement, and
     averages all episodes of the drawn homes. Deterministic for a given ``seed``."""

@@ -125,8 +125,9 @@ def instance_distance_grid(obj: SceneObject, grid: NavGrid) -> np.ndarray:
     return d
 
 
-def instance_viewpoints(world, instance_id: int, free: np.ndarray | None = None,
-                        camera_height_m: float = CAMERA_HEIGHT_M) -> np.ndarray:
+def instance_viewpoints(
+    world, instance_id: int, free: np.ndarray | None = None, camera_height_m: float = CAMERA_HEIGHT_M
+) -> np.ndarray:
     """(N, 2) float64 world xy of the instance's goal viewpoints (may be empty).
 
     world: a ``sim.world.SimWorld`` (navigable grid and ray tests).

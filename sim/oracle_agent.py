@@ -51,8 +51,13 @@ class OracleAgent:
     def _replan(self, pose: Pose2D) -> LatticePlan | None:
         field = self.oracle.goal_field()
         grid = self.oracle.navigable
-        plan = plan_to_goal(self.oracle.move_world, pose, self._goal,
-                            lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0), weight=self.weight)
+        plan = plan_to_goal(
+            self.oracle.move_world,
+            pose,
+            self._goal,
+            lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),
+            weight=self.weight,
+        )
         self.replans += 1
         if plan is None:
             self._steps = []
@@ -72,7 +77,11 @@ class OracleAgent:
             reason = "planned" if plan is not None else "no path to any viewpoint on the motion lattice"
         action = self._steps.pop(0)[1] if self._steps else Action.STOP
         self._record = AgentRecord(
-            step=obs.step, action=action, pose=obs.pose, mode="oracle" if action != Action.STOP else "stopped",
-            reason=reason, timings_ms={"total": (time.perf_counter() - t0) * 1000.0},
+            step=obs.step,
+            action=action,
+            pose=obs.pose,
+            mode="oracle" if action != Action.STOP else "stopped",
+            reason=reason,
+            timings_ms={"total": (time.perf_counter() - t0) * 1000.0},
         )
         return action

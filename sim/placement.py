@@ -30,7 +30,7 @@ MIN_APPROACH_CELLS = 12
 MIN_REACHABLE_SHARE = 0.85
 PASSAGE_MARGIN_M = 0.1
 _R = int(round(PASSAGE_MARGIN_M / GRID_M))
-_DISC = np.hypot(*np.mgrid[-_R:_R + 1, -_R:_R + 1]) <= _R + 1e-9
+_DISC = np.hypot(*np.mgrid[-_R : _R + 1, -_R : _R + 1]) <= _R + 1e-9
 
 Bounds = tuple[float, float, float, float]
 
@@ -85,7 +85,11 @@ class RoomPlacer:
     # --- queries ---------------------------------------------------------
 
     def _navigable_ok(self, extra: tuple[Part, ...], instance_parts: list[tuple[Part, ...]]) -> bool:
-        parts = list(self.local_walls) + [p for pl in self.placed for p in pl.parts if p.solid] + [p for p in extra if p.solid]
+        parts = (
+            list(self.local_walls)
+            + [p for pl in self.placed for p in pl.parts if p.solid]
+            + [p for p in extra if p.solid]
+        )
         index = FootprintIndex([p.footprint() for p in parts], self.check_bounds)
         grid = index.navigable_grid(GRID_M)
         # Connectivity through passages with PASSAGE_MARGIN_M to spare on each side: the robot's
@@ -131,9 +135,18 @@ class RoomPlacer:
                 return False  # two rugs
         return True
 
-    def add(self, category: str, variant: str, local: list[LocalPart], pose: tuple[float, float, float],
-            materials: dict[str, str], is_instance: bool, z_offset_m: float = 0.0, ignore: tuple[int, ...] = (),
-            on_wall_z_m: float | None = None) -> bool:
+    def add(
+        self,
+        category: str,
+        variant: str,
+        local: list[LocalPart],
+        pose: tuple[float, float, float],
+        materials: dict[str, str],
+        is_instance: bool,
+        z_offset_m: float = 0.0,
+        ignore: tuple[int, ...] = (),
+        on_wall_z_m: float | None = None,
+    ) -> bool:
         parts = place(local, pose, materials, z_offset_m)
         if not self.fits(parts, ignore, on_wall_z_m):
             return False
@@ -148,7 +161,9 @@ class RoomPlacer:
 
     # --- pose proposals ----------------------------------------------------
 
-    def wall_pose(self, local: list[LocalPart], side: int | None = None, along: float | None = None) -> tuple[float, float, float]:
+    def wall_pose(
+        self, local: list[LocalPart], side: int | None = None, along: float | None = None
+    ) -> tuple[float, float, float]:
         """A pose with the object's back (local -y) against a wall. side: 0 south, 1 east, 2 north, 3 west."""
         side = int(self.rng.integers(0, 4)) if side is None else side
         yaw = (0.0, math.pi / 2, math.pi, -math.pi / 2)[side]

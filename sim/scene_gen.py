@@ -27,9 +27,18 @@ from sim.textures import NATURAL_IMAGES, Material
 GENERATOR_VERSION = 3
 
 _SLOT_FAMILIES = {
-    "fabric": ("fabric", 0.5), "fabric2": ("fabric", 0.4), "wood": ("wood", 0.6), "leaves": ("leaves", 0.4),
-    "pot": ("terracotta", 0.5), "ceramic": ("ceramic", 0.5), "plastic": ("plastic", 0.5), "metal": ("metal", 0.5),
-    "books": ("fabric", 0.3), "stone": ("carpet", 0.5), "mirror": ("metal", 1.0), "panel": ("darktiles", 0.8),
+    "fabric": ("fabric", 0.5),
+    "fabric2": ("fabric", 0.4),
+    "wood": ("wood", 0.6),
+    "leaves": ("leaves", 0.4),
+    "pot": ("terracotta", 0.5),
+    "ceramic": ("ceramic", 0.5),
+    "plastic": ("plastic", 0.5),
+    "metal": ("metal", 0.5),
+    "books": ("fabric", 0.3),
+    "stone": ("carpet", 0.5),
+    "mirror": ("metal", 1.0),
+    "panel": ("darktiles", 0.8),
 }
 
 
@@ -87,8 +96,18 @@ class _Furnisher:
             if rng.uniform() < p:
                 self.styles[category] = int(rng.integers(0, 2**30))
 
-    def item(self, pl: RoomPlacer, category: str, variant: str, local: list[F.LocalPart], pose_fn, tries: int = 25,
-             is_instance: bool = False, style: int | None = None, **kw) -> bool:
+    def item(
+        self,
+        pl: RoomPlacer,
+        category: str,
+        variant: str,
+        local: list[F.LocalPart],
+        pose_fn,
+        tries: int = 25,
+        is_instance: bool = False,
+        style: int | None = None,
+        **kw,
+    ) -> bool:
         mats = self.mats.slots(local, style=style if style is not None else self.styles.get(category))
         return _try(tries, lambda: pl.add(category, variant, local, pose_fn(), mats, is_instance, **kw))
 
@@ -104,7 +123,9 @@ class _Furnisher:
         return False
 
     def plant(self, pl: RoomPlacer) -> bool:
-        return self.goal(pl, "potted plant", lambda local, k: pl.corner_pose(0.4) if self.rng.uniform() < 0.7 else pl.free_pose(0.4))
+        return self.goal(
+            pl, "potted plant", lambda local, k: pl.corner_pose(0.4) if self.rng.uniform() < 0.7 else pl.free_pose(0.4)
+        )
 
     def tv(self, pl: RoomPlacer, side: int | None) -> bool:
         wall = self.rng.uniform() < 0.35
@@ -112,7 +133,12 @@ class _Furnisher:
         mats = self.mats.slots(local)
         if wall:
             z = float(self.rng.uniform(1.0, 1.25))
-            return _try(20, lambda: pl.add("tv", variant, local, pl.wall_pose(local, side), mats, True, z_offset_m=z, on_wall_z_m=z))
+            return _try(
+                20,
+                lambda: pl.add(
+                    "tv", variant, local, pl.wall_pose(local, side), mats, True, z_offset_m=z, on_wall_z_m=z
+                ),
+            )
         stand = F.cabinet(self.rng, float(self.rng.uniform(1.2, 1.8)), 0.42, float(self.rng.uniform(0.45, 0.6)))
         stand_mats = self.mats.slots(stand)
         stand_h = max(p.center_xyz_m[2] + p.size_xyz_m[2] / 2 for p in stand)
@@ -133,7 +159,12 @@ class _Furnisher:
             local = F.picture(self.rng, w, aspect)
             mats = self.mats.slots(local, aspect)
             z = float(self.rng.uniform(1.2, 1.5))
-            _try(15, lambda: pl.add("picture", "framed", local, pl.wall_pose(local), mats, False, z_offset_m=z, on_wall_z_m=z))
+            _try(
+                15,
+                lambda: pl.add(
+                    "picture", "framed", local, pl.wall_pose(local), mats, False, z_offset_m=z, on_wall_z_m=z
+                ),
+            )
 
     def rug(self, pl: RoomPlacer, around: tuple[float, float] | None = None) -> None:
         w, d = float(self.rng.uniform(1.4, 2.6)), float(self.rng.uniform(1.0, 1.8))
@@ -157,7 +188,9 @@ class _Furnisher:
         if self.rng.uniform() < 0.4:
             self.goal(pl, "couch", lambda local, k: pl.wall_pose(local))
         for _ in range(int(self.rng.integers(0, 3))):
-            self.goal(pl, "chair", lambda local, k: pl.free_pose(0.5) if self.rng.uniform() < 0.5 else pl.wall_pose(local))
+            self.goal(
+                pl, "chair", lambda local, k: pl.free_pose(0.5) if self.rng.uniform() < 0.5 else pl.wall_pose(local)
+            )
         for _ in range(int(self.rng.integers(1, 3))):
             self.plant(pl)
         if self.rng.uniform() < 0.6:
@@ -178,13 +211,20 @@ class _Furnisher:
         self.item(pl, "fridge", "fridge", fr, lambda: pl.wall_pose(fr), 15)
         tw, td = float(self.rng.uniform(1.0, 1.6)), float(self.rng.uniform(0.75, 0.95))
         table = F.table(self.rng, tw, td, 0.75)
-        if self.item(pl, "table", "dining", table, lambda: pl.free_pose(1.0, float(self.rng.choice([0.0, math.pi / 2]))), 25):
+        if self.item(
+            pl, "table", "dining", table, lambda: pl.free_pose(1.0, float(self.rng.choice([0.0, math.pi / 2]))), 25
+        ):
             tx, ty, tyaw = pl.placed[-1].pose_xy_yaw
             variant, chair_local = F.chair(self.rng)
             while variant in ("armchair",):
                 variant, chair_local = F.chair(self.rng)
             o = 0.36
-            seats = [(0.0, td / 2 + o, math.pi), (0.0, -td / 2 - o, 0.0), (tw / 2 + o, 0.0, math.pi / 2), (-tw / 2 - o, 0.0, -math.pi / 2)]
+            seats = [
+                (0.0, td / 2 + o, math.pi),
+                (0.0, -td / 2 - o, 0.0),
+                (tw / 2 + o, 0.0, math.pi / 2),
+                (-tw / 2 - o, 0.0, -math.pi / 2),
+            ]
             n = int(self.rng.integers(2, 5))
             set_style = self.styles.get("chair", int(self.rng.integers(0, 2**30)))  # a matching set
             for lx, ly, lyaw in seats[:n]:
@@ -257,8 +297,13 @@ class _Furnisher:
         self.pictures(pl, int(self.rng.integers(1, 4)))
 
 
-_FLOORS = {"living room": ("planks", 2.0), "bedroom": ("planks", 2.0), "hallway": ("planks", 2.0),
-           "kitchen": ("tiles", 1.5), "bathroom": ("darktiles", 1.2)}
+_FLOORS = {
+    "living room": ("planks", 2.0),
+    "bedroom": ("planks", 2.0),
+    "hallway": ("planks", 2.0),
+    "kitchen": ("tiles", 1.5),
+    "bathroom": ("darktiles", 1.2),
+}
 
 
 def generate_home(seed: int, n_rooms: int | None = None) -> HomeSpec:
@@ -276,13 +321,23 @@ def generate_home(seed: int, n_rooms: int | None = None) -> HomeSpec:
         if plan.kind == "bedroom" and rng.uniform() < 0.3:
             fam, tile = "carpet", 1.0
         rooms.append(Room(k, plan.kind, f"{plan.kind} {counts[plan.kind]}", plan.rect_m, mats.new(fam, tile)))
-    floors = [Part("box", ((r.rect_m[0] + r.rect_m[2]) / 2, (r.rect_m[1] + r.rect_m[3]) / 2, -0.01),
-                   (r.rect_m[2] - r.rect_m[0], r.rect_m[3] - r.rect_m[1], 0.02), 0.0, r.floor_material, solid=False)
-              for r in rooms]
+    floors = [
+        Part(
+            "box",
+            ((r.rect_m[0] + r.rect_m[2]) / 2, (r.rect_m[1] + r.rect_m[3]) / 2, -0.01),
+            (r.rect_m[2] - r.rect_m[0], r.rect_m[3] - r.rect_m[1], 0.02),
+            0.0,
+            r.floor_material,
+            solid=False,
+        )
+        for r in rooms
+    ]
     xmax = max(r.rect_m[2] for r in rooms)
     ymax = max(r.rect_m[3] for r in rooms)
     ceiling_mat = mats.add(Material("plain", 0, 1.0, rgb=(236, 234, 228)))
-    ceiling = Part("box", (xmax / 2, ymax / 2, WALL_HEIGHT_M + 0.02), (xmax + 0.2, ymax + 0.2, 0.04), 0.0, ceiling_mat, solid=False)
+    ceiling = Part(
+        "box", (xmax / 2, ymax / 2, WALL_HEIGHT_M + 0.02), (xmax + 0.2, ymax + 0.2, 0.04), 0.0, ceiling_mat, solid=False
+    )
     furnisher = _Furnisher(rng, mats)
     placed = []
     for room in rooms:
@@ -292,11 +347,19 @@ def generate_home(seed: int, n_rooms: int | None = None) -> HomeSpec:
         placed += [(room.index, p) for p in pl.placed]
     instances = [(ri, p) for ri, p in placed if p.category in F.GOAL_BUILDERS or p.category == "tv"]
     clutter = [(ri, p) for ri, p in placed if not (p.category in F.GOAL_BUILDERS or p.category == "tv")]
-    objects = tuple(SceneObject(k, p.category, p.variant, ri, p.pose_xy_yaw, p.parts)
-                    for k, (ri, p) in enumerate(instances + clutter))
+    objects = tuple(
+        SceneObject(k, p.category, p.variant, ri, p.pose_xy_yaw, p.parts)
+        for k, (ri, p) in enumerate(instances + clutter)
+    )
     used = {p.material for o in objects for p in o.parts} | {p.material for p in walls + floors} | {ceiling.material}
     return HomeSpec(
-        seed=int(seed), rooms=tuple(rooms), doors=tuple(doors), walls=tuple(walls), floors=tuple(floors),
-        ceiling=ceiling, objects=objects, materials={k: v for k, v in mats.table.items() if k in used},
+        seed=int(seed),
+        rooms=tuple(rooms),
+        doors=tuple(doors),
+        walls=tuple(walls),
+        floors=tuple(floors),
+        ceiling=ceiling,
+        objects=objects,
+        materials={k: v for k, v in mats.table.items() if k in used},
         bounds_m=(0.0, 0.0, xmax, ymax),
     )

@@ -34,9 +34,22 @@ TEX_PX = 256
 
 # Natural images that ship with scikit-image (no download): (loader name, is colour)
 NATURAL_IMAGES: tuple[str, ...] = (
-    "astronaut", "coffee", "chelsea", "rocket", "hubble_deep_field", "retina",
-    "immunohistochemistry", "motorcycle", "colorwheel", "camera", "moon", "horse_photo",
-    "page", "brick", "grass", "gravel",
+    "astronaut",
+    "coffee",
+    "chelsea",
+    "rocket",
+    "hubble_deep_field",
+    "retina",
+    "immunohistochemistry",
+    "motorcycle",
+    "colorwheel",
+    "camera",
+    "moon",
+    "horse_photo",
+    "page",
+    "brick",
+    "grass",
+    "gravel",
 )
 
 
@@ -102,7 +115,7 @@ def _noise(rng: np.random.Generator, cells: int, size: int = TEX_PX) -> np.ndarr
     """Seamless value noise in [-1, 1] with ``cells`` features per tile, (size, size) float32."""
     grid = rng.uniform(-1.0, 1.0, (cells, cells)).astype(np.float32)
     big = cv2.resize(np.tile(grid, (3, 3)), (3 * size, 3 * size), interpolation=cv2.INTER_CUBIC)
-    return big[size:2 * size, size:2 * size]
+    return big[size : 2 * size, size : 2 * size]
 
 
 def _hsv(h: float, s: float, v: float) -> np.ndarray:
@@ -140,12 +153,12 @@ def _fabric(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
     kind = srng.integers(0, 6)
     if kind == 0:  # stripes
         k = max(2, int(srng.integers(3, 12)) + int(rng.integers(-1, 2)))
-        band = ((np.sin(2 * math.pi * k * (yy if srng.uniform() < 0.5 else xx) / s) > rng.uniform(-0.5, 0.5)))
+        band = np.sin(2 * math.pi * k * (yy if srng.uniform() < 0.5 else xx) / s) > rng.uniform(-0.5, 0.5)
         img[band] = cols[1]
     elif kind == 1:  # plaid
         k1, k2 = int(srng.integers(2, 7)) + int(rng.integers(0, 2)), int(srng.integers(2, 7)) + int(rng.integers(0, 2))
-        a = (np.sin(2 * math.pi * k1 * xx / s) > 0.3)
-        b = (np.sin(2 * math.pi * k2 * yy / s) > 0.3)
+        a = np.sin(2 * math.pi * k1 * xx / s) > 0.3
+        b = np.sin(2 * math.pi * k2 * yy / s) > 0.3
         img[a] = img[a] * 0.5 + cols[1] * 0.5
         img[b] = img[b] * 0.5 + cols[2] * 0.5
     elif kind == 2:  # polka dots on a jittered lattice
@@ -176,8 +189,17 @@ def _fabric(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
         cx, cy = int(rng.integers(0, s)), int(rng.integers(0, s))
         r = int(rng.integers(5, 14))
         col = tuple(float(c) for c in (cols[2] * rng.uniform(0.6, 1.2)))
-        pts = (np.array([[math.cos(a), math.sin(a)] for a in np.linspace(0, 2 * math.pi, int(rng.integers(3, 7)), endpoint=False)])
-               * r * rng.uniform(0.5, 1.0, (1, 1)) + [cx, cy]).astype(np.int32)
+        pts = (
+            np.array(
+                [
+                    [math.cos(a), math.sin(a)]
+                    for a in np.linspace(0, 2 * math.pi, int(rng.integers(3, 7)), endpoint=False)
+                ]
+            )
+            * r
+            * rng.uniform(0.5, 1.0, (1, 1))
+            + [cx, cy]
+        ).astype(np.int32)
         _wrapped(lambda dx, dy: cv2.fillPoly(img, [pts + [dx, dy]], col, cv2.LINE_AA))
     weave = 0.06 * np.sign(np.sin(xx * math.pi / 2) * np.sin(yy * math.pi / 2))
     return _shade(img, weave + 0.12 * _noise(rng, 6))
@@ -213,7 +235,7 @@ def _planks(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
         img[y0:y1] = _shade(np.ones((y1 - y0, s, 3), np.float32) * tone, 0.12 * grain)
         img[y0] *= 0.55
         cut = int(rng.integers(0, s))
-        img[y0:y1, cut:cut + 2] *= 0.55
+        img[y0:y1, cut : cut + 2] *= 0.55
     return img
 
 
@@ -228,11 +250,11 @@ def _tiles(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> 
     for i in range(n):
         for j in range(n):
             y0, x0 = i * s // n, j * s // n
-            img[y0:y0 + s // n, x0:x0 + s // n] *= rng.uniform(0.85, 1.15)
+            img[y0 : y0 + s // n, x0 : x0 + s // n] *= rng.uniform(0.85, 1.15)
     grout = _hsv(0, 0, 0.85 if dark else 0.35)
     for k in range(n):
-        img[k * s // n:k * s // n + 3] = grout
-        img[:, k * s // n:k * s // n + 3] = grout
+        img[k * s // n : k * s // n + 3] = grout
+        img[:, k * s // n : k * s // n + 3] = grout
     return img
 
 
@@ -292,20 +314,26 @@ def _metal(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> 
 
 def _terracotta(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX
-    img = np.ones((s, s, 3), np.float32) * _hsv(srng.uniform(0.0, 0.12), srng.uniform(0.3, 0.8), srng.uniform(0.3, 0.85))
+    img = np.ones((s, s, 3), np.float32) * _hsv(
+        srng.uniform(0.0, 0.12), srng.uniform(0.3, 0.8), srng.uniform(0.3, 0.85)
+    )
     img = _shade(img, 0.1 * _noise(rng, 20))
     if srng.uniform() < 0.7:  # painted bands / zigzags (decorated pots)
         col = tuple(float(c) for c in _palette(srng, 1)[0])
         k = int(srng.integers(2, 6))
         for b in range(k):
             y = (b + 0.5) * s / k
-            pts = np.array([[x, y + (8 if (x // 16) % 2 else -8) * rng.uniform(0, 1)] for x in range(0, s + 16, 16)], np.int32)
+            pts = np.array(
+                [[x, y + (8 if (x // 16) % 2 else -8) * rng.uniform(0, 1)] for x in range(0, s + 16, 16)], np.int32
+            )
             cv2.polylines(img, [pts.reshape(-1, 1, 2)], False, col, int(rng.integers(2, 6)), cv2.LINE_AA)
     return img
 
 
 def _paint(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
-    img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(rng.uniform(), rng.uniform(0.03, 0.25), rng.uniform(0.75, 0.93))
+    img = np.ones((TEX_PX, TEX_PX, 3), np.float32) * _hsv(
+        rng.uniform(), rng.uniform(0.03, 0.25), rng.uniform(0.75, 0.93)
+    )
     return _shade(img, 0.05 * _noise(rng, 6) + 0.02 * _noise(rng, 60))
 
 
@@ -338,7 +366,7 @@ def _picture(rng: np.random.Generator, m: Material, srng: np.random.Generator) -
         ch = h
         cw = int(h / m.aspect)
     y0, x0 = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
-    img = img[y0:y0 + ch, x0:x0 + cw]
+    img = img[y0 : y0 + ch, x0 : x0 + cw]
     if rng.uniform() < 0.5:
         img = img[:, ::-1]
     if _natural(m.image).std(axis=2).mean() < 1.0:  # grey photo: tint it like a print
@@ -352,8 +380,20 @@ def _screen(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
 
 
 _GENERATORS = {
-    "fabric": _fabric, "wood": _wood, "leaves": _leaves, "ceramic": _ceramic, "plastic": _plastic,
-    "paint": _paint, "planks": _planks, "tiles": _tiles, "darktiles": _tiles, "carpet": _carpet, "terracotta": _terracotta,
-    "metal": _metal, "picture": _picture, "screen": _screen, "plain": _plain,
+    "fabric": _fabric,
+    "wood": _wood,
+    "leaves": _leaves,
+    "ceramic": _ceramic,
+    "plastic": _plastic,
+    "paint": _paint,
+    "planks": _planks,
+    "tiles": _tiles,
+    "darktiles": _tiles,
+    "carpet": _carpet,
+    "terracotta": _terracotta,
+    "metal": _metal,
+    "picture": _picture,
+    "screen": _screen,
+    "plain": _plain,
 }
 _FAMILY_IDS = {name: k for k, name in enumerate(sorted(_GENERATORS))}

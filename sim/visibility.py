@@ -62,7 +62,9 @@ def room_visibility(home: HomeSpec) -> list[frozenset[int]]:
         xs = np.arange(x0 + 0.08, x1 - 0.08 + 1e-9, POINT_SPACING_M)
         ys = np.arange(y0 + 0.08, y1 - 0.08 + 1e-9, POINT_SPACING_M)
         # the lattice plus points along the room's edges (doorways are on the edges)
-        edge = [(x, y) for x in (x0 + 0.06, x1 - 0.06) for y in ys] + [(x, y) for y in (y0 + 0.06, y1 - 0.06) for x in xs]
+        edge = [(x, y) for x in (x0 + 0.06, x1 - 0.06) for y in ys] + [
+            (x, y) for y in (y0 + 0.06, y1 - 0.06) for x in xs
+        ]
         pts = np.concatenate([np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2), np.array(edge).reshape(-1, 2)])
         origins = np.repeat(pts, len(dirs), axis=0)
         rd = np.tile(dirs, (len(pts), 1))
@@ -88,12 +90,21 @@ class ViewCuller:
     the ray spacing (a room seen only through a gap narrower than a pixel may be missed)."""
 
     def __init__(self, home: HomeSpec, margin_deg: float = 6.0) -> None:
-        self.walls = np.array([w.footprint().bounds() for w in home.walls if w.center_xyz_m[2] - w.size_xyz_m[2] / 2 < 0.01])
+        self.walls = np.array(
+            [w.footprint().bounds() for w in home.walls if w.center_xyz_m[2] - w.size_xyz_m[2] / 2 < 0.01]
+        )
         self.rooms = np.array([r.rect_m for r in home.rooms], dtype=np.float64)
         self.margin = math.radians(margin_deg)
 
-    def visible_rooms(self, eye_xy: tuple[float, float], yaw_rad: float, pitch_rad: float, hfov_deg: float,
-                      vfov_deg: float, width_px: int) -> set[int]:
+    def visible_rooms(
+        self,
+        eye_xy: tuple[float, float],
+        yaw_rad: float,
+        pitch_rad: float,
+        hfov_deg: float,
+        vfov_deg: float,
+        width_px: int,
+    ) -> set[int]:
         """Rooms seen by a camera at ``eye_xy`` (yaw, pitch down) with this field of view."""
         # azimuth span of the image: the corners of a pitched camera reach wider than hfov / 2
         th, tv = math.tan(math.radians(hfov_deg) / 2), math.tan(math.radians(vfov_deg) / 2)

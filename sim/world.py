@@ -43,8 +43,14 @@ log = logging.getLogger(__name__)
 
 # sub-steps of a forward move checked for collision (no tunnelling past corners)
 _SWEEP_SAMPLES = 5
-_LIGHT = dict(lightDirection=[0.4, 0.25, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=10.0,
-              lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.02)
+_LIGHT = dict(
+    lightDirection=[0.4, 0.25, 1.0],
+    lightColor=[1.0, 1.0, 1.0],
+    lightDistance=10.0,
+    lightAmbientCoeff=0.55,
+    lightDiffuseCoeff=0.5,
+    lightSpecularCoeff=0.02,
+)
 
 
 def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
@@ -57,7 +63,9 @@ def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
         local = meshes.cylinder(part.size_xyz_m[0] / 2.0, part.size_xyz_m[2], tile_m, part.taper)
     elif part.shape == "ellipsoid":
         # lumpy foliage: deterministic jitter from the part's position
-        seed = sum(int(round(v * 1000.0)) * k for v, k in zip(part.center_xyz_m, (73856093, 19349663, 83492791))) % (2**31)
+        seed = sum(int(round(v * 1000.0)) * k for v, k in zip(part.center_xyz_m, (73856093, 19349663, 83492791))) % (
+            2**31
+        )
         rng = np.random.default_rng([seed, 11])
         jitter = rng.uniform(2.0 - FOLIAGE_JITTER, FOLIAGE_JITTER, (7, 10))
         jitter[0] = jitter[0].mean()
@@ -100,30 +108,47 @@ class SimWorld:
         for body, obj in self.body_to_object.items():
             if home.objects[obj].is_instance:
                 self._seg_lut[body + 1] = obj
-        log.debug("built home %d: %d bodies, %d textures in %.2f s", home.seed, n_bodies, len(self._textures),
-                  time.perf_counter() - t0)
+        log.debug(
+            "built home %d: %d bodies, %d textures in %.2f s",
+            home.seed,
+            n_bodies,
+            len(self._textures),
+            time.perf_counter() - t0,
+        )
 
     @classmethod
-    def from_seed(cls, scene_seed: int) -> "SimWorld":
+    def from_seed(cls, scene_seed: int) -> SimWorld:
         return cls(generate_home(scene_seed))
 
     # --- building ------------------------------------------------------------
 
     def _texture(self, key: str) -> int:
         if key not in self._textures:
-            self._textures[key] = pb.loadTexture(str(texture_path(self.home.materials[key])), physicsClientId=self._client)
+            self._textures[key] = pb.loadTexture(
+                str(texture_path(self.home.materials[key])), physicsClientId=self._client
+            )
         return self._textures[key]
 
     def _multibody(self, client: int, links: list[tuple[int, int]]) -> int:
         """A static body at the origin with one fixed link per (visual, collision) shape pair."""
         n = len(links)
         return pb.createMultiBody(
-            baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1, basePosition=[0, 0, 0],
-            linkMasses=[0] * n, linkCollisionShapeIndices=[s for _, s in links], linkVisualShapeIndices=[v for v, _ in links],
-            linkPositions=[[0, 0, 0]] * n, linkOrientations=[[0, 0, 0, 1]] * n,
-            linkInertialFramePositions=[[0, 0, 0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
-            linkParentIndices=[0] * n, linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n,
-            physicsClientId=client)
+            baseMass=0,
+            baseCollisionShapeIndex=-1,
+            baseVisualShapeIndex=-1,
+            basePosition=[0, 0, 0],
+            linkMasses=[0] * n,
+            linkCollisionShapeIndices=[s for _, s in links],
+            linkVisualShapeIndices=[v for v, _ in links],
+            linkPositions=[[0, 0, 0]] * n,
+            linkOrientations=[[0, 0, 0, 1]] * n,
+            linkInertialFramePositions=[[0, 0, 0]] * n,
+            linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
+            linkParentIndices=[0] * n,
+            linkJointTypes=[pb.JOINT_FIXED] * n,
+            linkJointAxis=[[0, 0, 1]] * n,
+            physicsClientId=client,
+        )
 
     def _body(self, parts: tuple[Part, ...] | list[Part], collide: bool = True) -> tuple[int, int]:
         """(render body, ray body or -1). Visual meshes and collision shapes live in separate
@@ -136,25 +161,46 @@ class SimWorld:
         vis = []
         for key, group in by_material.items():
             mesh = meshes.Mesh.merge([_part_mesh(p, self.home.materials[key].tile_m) for p in group])
-            vis.append((key, pb.createVisualShape(
-                pb.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.indices.tolist(),
-                uvs=mesh.uvs.tolist(), normals=mesh.normals.tolist(), physicsClientId=c)))
+            vis.append(
+                (
+                    key,
+                    pb.createVisualShape(
+                        pb.GEOM_MESH,
+                        vertices=mesh.vertices.tolist(),
+                        indices=mesh.indices.tolist(),
+                        uvs=mesh.uvs.tolist(),
+                        normals=mesh.normals.tolist(),
+                        physicsClientId=c,
+                    ),
+                )
+            )
         body = self._multibody(c, [(v, -1) for _, v in vis])
         self._links[body] = len(vis)
         for link, (key, _) in enumerate(vis):
-            pb.changeVisualShape(body, link, textureUniqueId=self._textures[key], rgbaColor=[1, 1, 1, 1], physicsClientId=c)
+            pb.changeVisualShape(
+                body, link, textureUniqueId=self._textures[key], rgbaColor=[1, 1, 1, 1], physicsClientId=c
+            )
         if not collide:
             return body, -1
         rc = self._ray_client
         col = []
         for p in parts:
             if p.shape == "box":
-                col.append(pb.createCollisionShape(
-                    pb.GEOM_BOX, halfExtents=[s / 2.0 for s in p.size_xyz_m], collisionFramePosition=p.center_xyz_m,
-                    collisionFrameOrientation=pb.getQuaternionFromEuler([0, 0, p.yaw_rad]), physicsClientId=rc))
+                col.append(
+                    pb.createCollisionShape(
+                        pb.GEOM_BOX,
+                        halfExtents=[s / 2.0 for s in p.size_xyz_m],
+                        collisionFramePosition=p.center_xyz_m,
+                        collisionFrameOrientation=pb.getQuaternionFromEuler([0, 0, p.yaw_rad]),
+                        physicsClientId=rc,
+                    )
+                )
             else:  # convex hull of the visual mesh
-                col.append(pb.createCollisionShape(pb.GEOM_MESH, vertices=_part_mesh(p, 1.0).vertices.tolist(),
-                                                   physicsClientId=rc))
+                col.append(
+                    pb.createCollisionShape(
+                        pb.GEOM_MESH, vertices=_part_mesh(p, 1.0).vertices.tolist(), physicsClientId=rc
+                    )
+                )
         return body, self._multibody(rc, [(-1, s) for s in col])
 
     def _build(self) -> None:
@@ -166,9 +212,14 @@ class SimWorld:
         by_rooms: dict[frozenset[int], list[Part]] = defaultdict(list)
         for w in home.walls:
             x0, y0, x1, y1 = w.footprint().bounds()
-            touching = frozenset(r.index for r in home.rooms
-                                 if x0 <= r.rect_m[2] + 1e-6 and r.rect_m[0] <= x1 + 1e-6 and y0 <= r.rect_m[3] + 1e-6
-                                 and r.rect_m[1] <= y1 + 1e-6)
+            touching = frozenset(
+                r.index
+                for r in home.rooms
+                if x0 <= r.rect_m[2] + 1e-6
+                and r.rect_m[0] <= x1 + 1e-6
+                and y0 <= r.rect_m[3] + 1e-6
+                and r.rect_m[1] <= y1 + 1e-6
+            )
             by_rooms[touching].append(w)
         for rooms, parts in sorted(by_rooms.items(), key=lambda kv: sorted(kv[0])):
             self._cull_groups.append((rooms, self._body(parts)[0]))
@@ -181,8 +232,14 @@ class SimWorld:
         c = home.ceiling
         for room in home.rooms:
             x0, y0, x1, y1 = room.rect_m
-            part = Part("box", ((x0 + x1) / 2, (y0 + y1) / 2, c.center_xyz_m[2]), (x1 - x0, y1 - y0, c.size_xyz_m[2]),
-                        0.0, c.material, solid=False)
+            part = Part(
+                "box",
+                ((x0 + x1) / 2, (y0 + y1) / 2, c.center_xyz_m[2]),
+                (x1 - x0, y1 - y0, c.size_xyz_m[2]),
+                0.0,
+                c.material,
+                solid=False,
+            )
             self._cull_groups.append((frozenset([room.index]), self._body([part], collide=False)[0]))
         for obj in home.objects:
             body, ray_body = self._body(obj.parts)
@@ -198,15 +255,18 @@ class SimWorld:
             return
         if self._culler is None:
             self._culler = ViewCuller(self.home)
-        visible: set[int] | None = self._culler.visible_rooms(eye_xy, yaw_rad, pitch_rad, camera.hfov_deg,
-                                                              camera.vfov_deg, camera.width_px)
+        visible: set[int] | None = self._culler.visible_rooms(
+            eye_xy, yaw_rad, pitch_rad, camera.hfov_deg, camera.vfov_deg, camera.width_px
+        )
         if not visible:
             visible = None  # outside every room: draw everything
         for rooms, body in self._cull_groups:
             show = visible is None or not rooms or bool(rooms & visible)
             if self._shown.get(body, True) != show:
                 for link in range(self._links[body]):
-                    pb.changeVisualShape(body, link, rgbaColor=[1, 1, 1, 1 if show else 0], physicsClientId=self._client)
+                    pb.changeVisualShape(
+                        body, link, rgbaColor=[1, 1, 1, 1 if show else 0], physicsClientId=self._client
+                    )
                 self._shown[body] = show
 
     # --- queries ---------------------------------------------------------------
@@ -224,9 +284,13 @@ class SimWorld:
                     return pose_world, False
             return Pose2D(pose_world.x_m + dx, pose_world.y_m + dy, pose_world.yaw_rad), True
         if action == Action.TURN_LEFT:
-            return Pose2D(pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad + math.radians(TURN_ANGLE_DEG))), True
+            return Pose2D(
+                pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad + math.radians(TURN_ANGLE_DEG))
+            ), True
         if action == Action.TURN_RIGHT:
-            return Pose2D(pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad - math.radians(TURN_ANGLE_DEG))), True
+            return Pose2D(
+                pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad - math.radians(TURN_ANGLE_DEG))
+            ), True
         if action == Action.STOP:
             return pose_world, False
         raise ValueError(f"unknown action {action!r}")
@@ -247,26 +311,40 @@ class SimWorld:
         out = np.empty(len(from_xyz), dtype=np.int64)
         batch = pb.MAX_RAY_INTERSECTION_BATCH_SIZE - 1
         for s in range(0, len(from_xyz), batch):
-            hits = pb.rayTestBatch(from_xyz[s:s + batch].tolist(), to_xyz[s:s + batch].tolist(),
-                                   physicsClientId=self._ray_client)
+            hits = pb.rayTestBatch(
+                from_xyz[s : s + batch].tolist(), to_xyz[s : s + batch].tolist(), physicsClientId=self._ray_client
+            )
             for k, h in enumerate(hits):
                 out[s + k] = -2 if h[0] < 0 else self._ray_body_to_object.get(h[0], -1)
         return out
 
     # --- rendering -------------------------------------------------------------
 
-    def render_view(self, eye_xyz: tuple[float, float, float] | np.ndarray, yaw_rad: float, pitch_rad: float,
-                    camera: CameraSpec) -> Render:
+    def render_view(
+        self, eye_xyz: tuple[float, float, float] | np.ndarray, yaw_rad: float, pitch_rad: float, camera: CameraSpec
+    ) -> Render:
         """Render from any camera pose (yaw CCW from +x, pitch positive down)."""
         eye = np.asarray(eye_xyz, dtype=np.float64)
         self._cull((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera)
         forward, up = camera_axes(yaw_rad, pitch_rad)
         view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=self._client)
-        proj = pb.computeProjectionMatrixFOV(camera.vfov_deg, camera.width_px / camera.height_px, camera.near_m,
-                                             camera.far_m, physicsClientId=self._client)
+        proj = pb.computeProjectionMatrixFOV(
+            camera.vfov_deg,
+            camera.width_px / camera.height_px,
+            camera.near_m,
+            camera.far_m,
+            physicsClientId=self._client,
+        )
         w, h, rgba, depth, seg = pb.getCameraImage(
-            camera.width_px, camera.height_px, view, proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
-            physicsClientId=self._client, **_LIGHT)
+            camera.width_px,
+            camera.height_px,
+            view,
+            proj,
+            renderer=pb.ER_TINY_RENDERER,
+            shadow=0,
+            physicsClientId=self._client,
+            **_LIGHT,
+        )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
         depth_m = depth_buffer_to_metres(np.asarray(depth, dtype=np.float32).reshape(h, w), camera.near_m, camera.far_m)
         return Render(rgb, depth_m, np.asarray(seg).reshape(h, w), self._seg_lut)
@@ -286,7 +364,7 @@ class SimWorld:
                     log.debug("disconnect: %s", exc)
                 setattr(self, name, -1)
 
-    def __enter__(self) -> "SimWorld":
+    def __enter__(self) -> SimWorld:
         return self
 
     def __exit__(self, *exc: object) -> None:

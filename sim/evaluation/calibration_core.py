@@ -14,8 +14,8 @@ the paper, not of a rebalanced set.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -54,8 +54,9 @@ def make_pairs(instance_of_image: Sequence[int], max_negatives: int, seed: int =
     return PairSet(pairs, label, weight, int(len(neg_all)))
 
 
-def score_pairs(matcher: Matcher, features: Sequence[Features], pairs: np.ndarray,
-                progress: Iterable | None = None) -> tuple[np.ndarray, np.ndarray]:
+def score_pairs(
+    matcher: Matcher, features: Sequence[Features], pairs: np.ndarray, progress: Iterable | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(conf, count) per pair: the two score functions from one matching pass."""
     conf = np.zeros(len(pairs), np.float64)
     count = np.zeros(len(pairs), np.float64)

@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 log = logging.getLogger(__name__)
 
@@ -24,15 +24,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     specs = all_specs()
     parser.add_argument("--episodes", required=True, help="episode-set directory (from `imgnav episodes`)")
-    parser.add_argument("--agent", required=True, choices=[s.name for s in specs],
-                        help="; ".join(f"{s.name}: {s.help}" for s in specs))
+    parser.add_argument(
+        "--agent", required=True, choices=[s.name for s in specs], help="; ".join(f"{s.name}: {s.help}" for s in specs)
+    )
     parser.add_argument("--out", required=True, help="output directory (episodes.jsonl, summary.json)")
     parser.add_argument("--limit", type=int, default=None, help="only the first N episodes")
-    parser.add_argument("--episode-ids", nargs="+", default=None, metavar="ID",
-                        help="only these episodes (ids, or @FILE with one id per line)")
+    parser.add_argument(
+        "--episode-ids",
+        nargs="+",
+        default=None,
+        metavar="ID",
+        help="only these episodes (ids, or @FILE with one id per line)",
+    )
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (episodes grouped by scene)")
     parser.add_argument("--overwrite", action="store_true", help="discard earlier results in --out instead of resuming")
-    parser.add_argument("--fail-fast", action="store_true", help="stop at the first episode error instead of recording it")
+    parser.add_argument(
+        "--fail-fast", action="store_true", help="stop at the first episode error instead of recording it"
+    )
     add_ray_arguments(parser)
     for spec in specs:
         if spec.add_arguments:
@@ -42,16 +50,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def add_ray_arguments(parser: argparse.ArgumentParser) -> None:
     """``--ray`` and its options (``imgnav eval`` and ``imgnav calibrate``)."""
     g = parser.add_argument_group("Ray (evaluation across machines; README 'Evaluating on a cluster')")
-    g.add_argument("--ray", default=None, metavar="ADDRESS",
-                   help="run the work as Ray tasks: 'local' (Ray on this machine with --workers CPUs), 'auto' "
-                        "(the cluster this machine is a node of), or the head's HOST:PORT (or ray://HOST:10001)")
-    g.add_argument("--ray-retries", type=int, default=2,
-                   help="re-submissions of a task whose worker or node died (then its episodes are recorded as errors)")
-    g.add_argument("--ray-max-in-flight", type=int, default=None,
-                   help="tasks submitted at once (default: twice the cluster's CPUs)")
-    g.add_argument("--ray-runtime-env", default=None, metavar="JSON",
-                   help='Ray runtime environment for the tasks, e.g. \'{"working_dir": "."}\' to ship this checkout '
-                        "to nodes that have the dependencies but not the code")
+    g.add_argument(
+        "--ray",
+        default=None,
+        metavar="ADDRESS",
+        help="run the work as Ray tasks: 'local' (Ray on this machine with --workers CPUs), 'auto' "
+        "(the cluster this machine is a node of), or the head's HOST:PORT (or ray://HOST:10001)",
+    )
+    g.add_argument(
+        "--ray-retries",
+        type=int,
+        default=2,
+        help="re-submissions of a task whose worker or node died (then its episodes are recorded as errors)",
+    )
+    g.add_argument(
+        "--ray-max-in-flight",
+        type=int,
+        default=None,
+        help="tasks submitted at once (default: twice the cluster's CPUs)",
+    )
+    g.add_argument(
+        "--ray-runtime-env",
+        default=None,
+        metavar="JSON",
+        help='Ray runtime environment for the tasks, e.g. \'{"working_dir": "."}\' to ship this checkout '
+        "to nodes that have the dependencies but not the code",
+    )
 
 
 def ray_options(args: argparse.Namespace, num_cpus: int):
@@ -68,8 +92,13 @@ def ray_options(args: argparse.Namespace, num_cpus: int):
             raise ValueError(f"--ray-runtime-env is not JSON: {exc}") from exc
         if not isinstance(env, dict):
             raise ValueError("--ray-runtime-env must be a JSON object")
-    return RayOptions(address=args.ray, num_cpus=num_cpus, max_retries=max(0, args.ray_retries),
-                      max_in_flight=args.ray_max_in_flight, runtime_env=env)
+    return RayOptions(
+        address=args.ray,
+        num_cpus=num_cpus,
+        max_retries=max(0, args.ray_retries),
+        max_in_flight=args.ray_max_in_flight,
+        runtime_env=env,
+    )
 
 
 def episode_ids(items: list[str] | None) -> list[str] | None:
@@ -100,8 +129,17 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         ray = ray_options(args, args.workers)
-        summary = run_evaluation(args.episodes, args.agent, args, out, limit=args.limit, workers=args.workers,
-                                 fail_fast=args.fail_fast, ray=ray, episode_ids=episode_ids(args.episode_ids))
+        summary = run_evaluation(
+            args.episodes,
+            args.agent,
+            args,
+            out,
+            limit=args.limit,
+            workers=args.workers,
+            fail_fast=args.fail_fast,
+            ray=ray,
+            episode_ids=episode_ids(args.episode_ids),
+        )
     except (FileNotFoundError, ValueError) as exc:
         log.error("%s", exc)
         return 2

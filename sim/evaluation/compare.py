@@ -30,9 +30,10 @@ import argparse
 import json
 import sys
 from collections import Counter
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from sim.metrics import aggregate, bootstrap_ci
 
@@ -72,8 +73,9 @@ class PairedDiff:
     lost: int  # succeeded in the base, failed in the variant
 
 
-def paired_difference(base: Mapping[str, Mapping[str, Any]], variant: Mapping[str, Mapping[str, Any]],
-                      ids: Sequence[str] | None = None) -> PairedDiff:
+def paired_difference(
+    base: Mapping[str, Mapping[str, Any]], variant: Mapping[str, Mapping[str, Any]], ids: Sequence[str] | None = None
+) -> PairedDiff:
     """The paired SR/SPL difference on ``ids`` (default: the episodes both have)."""
     ids = sorted(set(base) & set(variant)) if ids is None else list(ids)
     if not ids:
@@ -84,8 +86,16 @@ def paired_difference(base: Mapping[str, Mapping[str, Any]], variant: Mapping[st
     won = sum(1 for k in ids if variant[k]["success"] and not base[k]["success"])
     lost = sum(1 for k in ids if base[k]["success"] and not variant[k]["success"])
     n = len(ids)
-    return PairedDiff(n, len(set(homes)), sum(d_sr) / n, bootstrap_ci(d_sr, homes), sum(d_spl) / n,
-                      bootstrap_ci(d_spl, homes), won, lost)
+    return PairedDiff(
+        n,
+        len(set(homes)),
+        sum(d_sr) / n,
+        bootstrap_ci(d_sr, homes),
+        sum(d_spl) / n,
+        bootstrap_ci(d_spl, homes),
+        won,
+        lost,
+    )
 
 
 def _label(out_dir: str, records: Mapping[str, Mapping[str, Any]]) -> str:
@@ -109,44 +119,71 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
     common = sorted(set.intersection(*(set(r) for r in runs)))
     if paired and not common:
         raise ValueError("the runs have no episode in common")
-    lines = [f"Episodes in common: {len(common)} "
-             f"({len({runs[0][k]['scene_seed'] for k in common})} homes)" if paired else "Each run on its own episodes",
-             "", "| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |", "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"Episodes in common: {len(common)} ({len({runs[0][k]['scene_seed'] for k in common})} homes)"
+        if paired
+        else "Each run on its own episodes",
+        "",
+        "| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for d, recs in zip(out_dirs, runs):
         rows = [recs[k] for k in common] if paired else list(recs.values())
         agg = aggregate([{**r, "ne": float(r["ne"])} for r in rows])
-        lines.append(f"| {_label(d, recs)} | {agg['ne']:.2f} | {agg['max_st']:.3f} | {_ci(agg['sr'], agg['sr_ci95'])} | "
-                     f"{_ci(agg['spl'], agg['spl_ci95'])} | {agg['episodes']} ({agg['homes']} homes) |")
+        lines.append(
+            f"| {_label(d, recs)} | {agg['ne']:.2f} | {agg['max_st']:.3f} | {_ci(agg['sr'], agg['sr_ci95'])} | "
+            f"{_ci(agg['spl'], agg['spl_ci95'])} | {agg['episodes']} ({agg['homes']} homes) |"
+        )
     if len(runs) > 1 and common:
-        lines += ["", f"Paired against {out_dirs[0]} on the {len(common)} common episodes (bootstrap over homes):", "",
-                  "| variant | d SR [95% CI] | d SPL [95% CI] | won | lost | same actions |",
-                  "| --- | --- | --- | --- | --- | --- |"]
+        lines += [
+            "",
+            f"Paired against {out_dirs[0]} on the {len(common)} common episodes (bootstrap over homes):",
+            "",
+            "| variant | d SR [95% CI] | d SPL [95% CI] | won | lost | same actions |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
         for d, recs in zip(out_dirs[1:], runs[1:]):
             p = paired_difference(runs[0], recs, common)
             same = sum(same_actions(runs[0][k], recs[k]) for k in common)
-            lines.append(f"| {_label(d, recs)} | {_signed_ci(p.d_sr, p.d_sr_ci95)} | {_signed_ci(p.d_spl, p.d_spl_ci95)} | "
-                         f"{p.won} | {p.lost} | {same} of {len(common)} |")
+            lines.append(
+                f"| {_label(d, recs)} | {_signed_ci(p.d_sr, p.d_sr_ci95)} | {_signed_ci(p.d_spl, p.d_spl_ci95)} | "
+                f"{p.won} | {p.lost} | {same} of {len(common)} |"
+            )
     if common:
-        lines += ["", "Failures on the common episodes (counts):", "",
-                  "| variant | failed | " + " | ".join(FAILURE_CLASSES) + " | other |",
-                  "| --- | --- |" + " --- |" * (len(FAILURE_CLASSES) + 1)]
+        lines += [
+            "",
+            "Failures on the common episodes (counts):",
+            "",
+            "| variant | failed | " + " | ".join(FAILURE_CLASSES) + " | other |",
+            "| --- | --- |" + " --- |" * (len(FAILURE_CLASSES) + 1),
+        ]
         for d, recs in zip(out_dirs, runs):
             failed = [recs[k] for k in common if not recs[k]["success"]]
             c = Counter(r.get("failure_cause") or ("error" if r.get("error") else "unattributed") for r in failed)
             other = sum(v for k, v in c.items() if k not in FAILURE_CLASSES)
-            lines.append(f"| {_label(d, recs)} | {len(failed)} | " + " | ".join(str(c.get(k, 0)) for k in FAILURE_CLASSES)
-                         + f" | {other} |")
+            lines.append(
+                f"| {_label(d, recs)} | {len(failed)} | "
+                + " | ".join(str(c.get(k, 0)) for k in FAILURE_CLASSES)
+                + f" | {other} |"
+            )
     if common and all(all("timing" in recs[k] for k in common) for recs in runs):
-        lines += ["", "Cost on the common episodes (timings from each run's own machine and load: compare runs "
-                  "made side by side):", "",
-                  "| variant | agent ms/step (median over episodes) | simulator ms/step | episodes per hour | "
-                  "ratio to the first |", "| --- | --- | --- | --- | --- |"]
+        lines += [
+            "",
+            "Cost on the common episodes (timings from each run's own machine and load: compare runs "
+            "made side by side):",
+            "",
+            "| variant | agent ms/step (median over episodes) | simulator ms/step | episodes per hour | "
+            "ratio to the first |",
+            "| --- | --- | --- | --- | --- |",
+        ]
         base_rate = None
         for d, recs in zip(out_dirs, runs):
             c = cost([recs[k] for k in common])
             base_rate = base_rate or c["episodes_per_hour"]
-            lines.append(f"| {_label(d, recs)} | {c['agent_ms_per_step']:.0f} | {c['sim_ms_per_step']:.0f} | "
-                         f"{c['episodes_per_hour']:.1f} | {c['episodes_per_hour'] / base_rate:.2f} |")
+            lines.append(
+                f"| {_label(d, recs)} | {c['agent_ms_per_step']:.0f} | {c['sim_ms_per_step']:.0f} | "
+                f"{c['episodes_per_hour']:.1f} | {c['episodes_per_hour'] / base_rate:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -163,9 +200,11 @@ def cost(records: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 
     t = [r["timing"] for r in records]
     wall = sum(float(x["wall_s"]) for x in t)
-    return {"agent_ms_per_step": statistics.median(float(x["agent_ms_per_step"]) for x in t),
-            "sim_ms_per_step": statistics.median(float(x["sim_ms_per_step"]) for x in t),
-            "episodes_per_hour": 3600.0 * len(t) / wall if wall > 0 else float("nan")}
+    return {
+        "agent_ms_per_step": statistics.median(float(x["agent_ms_per_step"]) for x in t),
+        "sim_ms_per_step": statistics.median(float(x["sim_ms_per_step"]) for x in t),
+        "episodes_per_hour": 3600.0 * len(t) / wall if wall > 0 else float("nan"),
+    }
 
 
 def main(argv: Sequence[str] | None = None) -> int:

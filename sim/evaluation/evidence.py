@@ -29,9 +29,9 @@ import dataclasses
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -65,7 +65,7 @@ class Evidence:
     def __len__(self) -> int:
         return len(self.score)
 
-    def select(self, mask: np.ndarray) -> "Evidence":
+    def select(self, mask: np.ndarray) -> Evidence:
         return Evidence(**{f.name: getattr(self, f.name)[mask] for f in dataclasses.fields(self)})
 
 
@@ -85,10 +85,10 @@ class Bins:
         return k.astype(np.int64)
 
 
-SIZE_BINS = Bins("share", (0.0, IN_VIEW_PX / FRAME_PX, 0.03, 0.10, 0.30, 1.0 + 1e-9),
-                 ("<1%", "1-3%", "3-10%", "10-30%", ">30%"))
+SIZE_BINS = Bins(
+    "share", (0.0, IN_VIEW_PX / FRAME_PX, 0.03, 0.10, 0.30, 1.0 + 1e-9), ("<1%", "1-3%", "3-10%", "10-30%", ">30%")
+)
 DIST_BINS = Bins("dist_m", (0.0, 1.0, 2.0, 3.0, 5.0, math.inf), ("<1 m", "1-2 m", "2-3 m", "3-5 m", ">5 m"))
-
 
 
 def read_train_records(path: str | Path) -> list[dict]:
@@ -104,12 +104,21 @@ def read_train_records(path: str | Path) -> list[dict]:
             log.warning("%s: skipping an incomplete line", path)
             continue
         seed = rec.get("scene_seed")
-        clues = [c for c in (rec.get("split"), str(rec.get("episode_id", "")).split("-", 1)[0],
-                             None if seed is None else split_of_scene(int(seed))) if c in SPLITS]
+        clues = [
+            c
+            for c in (
+                rec.get("split"),
+                str(rec.get("episode_id", "")).split("-", 1)[0],
+                None if seed is None else split_of_scene(int(seed)),
+            )
+            if c in SPLITS
+        ]
         split = next((c for c in clues if c != "train"), clues[0] if clues else None)
         if split != "train":
-            raise ValueError(f"{path}: episode {rec.get('episode_id')} is from the {split} split; "
-                             "thresholds are calibrated on train records only")
+            raise ValueError(
+                f"{path}: episode {rec.get('episode_id')} is from the {split} split; "
+                "thresholds are calibrated on train records only"
+            )
         out.append(rec)
     return out
 
@@ -127,16 +136,27 @@ def gate_threshold_of(rec: dict) -> float | None:
         cfg = agent_config_from_dict(rec["agent_config"])
     else:
         kv = dict(s.split("=", 1) for s in str(rec.get("variant", "")).split(", ") if "=" in s)
-        ns = argparse.Namespace(modiin_config="sim", modiin_reid=kv.pop("reid", "conf"), modiin_loc=kv.pop("loc", "mask"),
-                                modiin_matcher=kv.pop("matcher", None), modiin_tau=None, modiin_threads=1, workers=1,
-                                modiin_set=["policy.potential_tau_ratio=1.0"] + [f"{k}={v}" for k, v in kv.items()])
+        ns = argparse.Namespace(
+            modiin_config="sim",
+            modiin_reid=kv.pop("reid", "conf"),
+            modiin_loc=kv.pop("loc", "mask"),
+            modiin_matcher=kv.pop("matcher", None),
+            modiin_tau=None,
+            modiin_threads=1,
+            workers=1,
+            modiin_set=["policy.potential_tau_ratio=1.0"] + [f"{k}={v}" for k, v in kv.items()],
+        )
         cfg = build_config(ns)
     base, ratio = resolve_gate_threshold(cfg.reid), cfg.policy.potential_tau_ratio
     return None if base is None else base * min(ratio, 1.0)
 
 
-def frames_evidence(paths: Sequence[str | Path], tau: float, calibrated_gate: float,
-                    gate_thresholds: Sequence[float | None] | None = None) -> Evidence:
+def frames_evidence(
+    paths: Sequence[str | Path],
+    tau: float,
+    calibrated_gate: float,
+    gate_thresholds: Sequence[float | None] | None = None,
+) -> Evidence:
     """Frames of train records; ``gate_thresholds`` per path (default: from each file's variant)."""
     cols: dict[str, list] = {f.name: [] for f in dataclasses.fields(Evidence)}
     for k, path in enumerate(paths):
@@ -145,7 +165,9 @@ def frames_evidence(paths: Sequence[str | Path], tau: float, calibrated_gate: fl
             raise ValueError(f"{path} mixes agent variants; pass one run per file")
         thr = gate_thresholds[k] if gate_thresholds is not None else gate_threshold_of(records[0]) if records else None
         bound = 0.0 if thr is None else tau * thr / calibrated_gate
-        log.info("%s: %d train episodes, gate threshold %s (censored frames score < %.1f)", path, len(records), thr, bound)
+        log.info(
+            "%s: %d train episodes, gate threshold %s (censored frames score < %.1f)", path, len(records), thr, bound
+        )
         for rec in records:
             tr = (rec.get("modiin") or {}).get("trace") or {}
             scores, px = tr.get("reid_score") or [], tr.get("goal_px") or []
@@ -155,14 +177,21 @@ def frames_evidence(paths: Sequence[str | Path], tau: float, calibrated_gate: fl
                 if s is None:  # no matcher score at this step
                     continue
                 cens = thr is not None and s == 0.0 and g is not None and g < thr
-                for name, v in (("score", s), ("censored", cens), ("gate_bound", bound), ("share", p / FRAME_PX),
-                                ("dist_m", math.nan if d is None else d), ("positive", p >= IN_VIEW_PX),
-                                ("glimpse", OUT_OF_VIEW_PX <= p < IN_VIEW_PX), ("negative", p < OUT_OF_VIEW_PX),
-                                ("weight", 1.0), ("unit", f"{path}:{rec.get('episode_id')}")):
+                for name, v in (
+                    ("score", s),
+                    ("censored", cens),
+                    ("gate_bound", bound),
+                    ("share", p / FRAME_PX),
+                    ("dist_m", math.nan if d is None else d),
+                    ("positive", p >= IN_VIEW_PX),
+                    ("glimpse", OUT_OF_VIEW_PX <= p < IN_VIEW_PX),
+                    ("negative", p < OUT_OF_VIEW_PX),
+                    ("weight", 1.0),
+                    ("unit", f"{path}:{rec.get('episode_id')}"),
+                ):
                     cols[name].append(v)
     types = {"censored": bool, "positive": bool, "glimpse": bool, "negative": bool, "unit": object}
     return Evidence(**{k: np.asarray(v, dtype=types.get(k, np.float64)) for k, v in cols.items()})
-
 
 
 def footprint_distance_m(x_m: float, y_m: float, bounds_xy_m: tuple[float, float, float, float]) -> float:
@@ -187,14 +216,29 @@ class PairSample:
 
     def evidence(self) -> Evidence:
         (a, b), n = self.pairs.T, len(self.pairs)
-        return Evidence(score=self.conf, censored=np.zeros(n, bool), gate_bound=np.zeros(n),
-                        share=np.minimum(self.share[a], self.share[b]), dist_m=np.maximum(self.dist_m[a], self.dist_m[b]),
-                        positive=self.label.copy(), glimpse=np.zeros(n, bool), negative=~self.label, weight=self.weight,
-                        unit=self.instance[a])
+        return Evidence(
+            score=self.conf,
+            censored=np.zeros(n, bool),
+            gate_bound=np.zeros(n),
+            share=np.minimum(self.share[a], self.share[b]),
+            dist_m=np.maximum(self.dist_m[a], self.dist_m[b]),
+            positive=self.label.copy(),
+            glimpse=np.zeros(n, bool),
+            negative=~self.label,
+            weight=self.weight,
+            unit=self.instance[a],
+        )
 
 
-def sample_pairs(instances: int, per_instance: int, max_negatives: int, scene_set: int = 500, seed: int = 0,
-                 config: str = "sim", threads: int = 1) -> PairSample:
+def sample_pairs(
+    instances: int,
+    per_instance: int,
+    max_negatives: int,
+    scene_set: int = 500,
+    seed: int = 0,
+    config: str = "sim",
+    threads: int = 1,
+) -> PairSample:
     """Same-instance and sampled different-instance goal-image pairs of train instances, scored."""
     from agent.config import load_agent_config
     from agent.reid.identifier import make_matcher
@@ -259,8 +303,9 @@ class MaxF:
     f_at_tau: float
 
 
-def max_f_threshold(ev: Evidence, pos: np.ndarray, neg: np.ndarray, tau: float,
-                    min_positives: int = 20, min_negatives: int = 20) -> MaxF | None:
+def max_f_threshold(
+    ev: Evidence, pos: np.ndarray, neg: np.ndarray, tau: float, min_positives: int = 20, min_negatives: int = 20
+) -> MaxF | None:
     """The threshold of maximal F separating ``pos`` from ``neg`` (masks on ev); None: too few samples."""
     from sim.evaluation.calibration_core import pr_curves
 
@@ -276,8 +321,15 @@ def max_f_threshold(ev: Evidence, pos: np.ndarray, neg: np.ndarray, tau: float,
     w, s, y = ev.weight[m], ev.score[m], pos[m]
     tp, fp = w[y & (s >= tau)].sum(), w[~y & (s >= tau)].sum()
     f_tau = 2 * tp / max(tp + fp + w[y].sum(), 1e-12) if tau >= floor else math.nan
-    return MaxF(float(c.threshold[best]), float(c.f[best]), float(c.precision[best]), float(c.recall[best]), floor,
-                bool(floor > 0 and best == ok[-1] and len(ok) < len(c.threshold)), float(f_tau))
+    return MaxF(
+        float(c.threshold[best]),
+        float(c.f[best]),
+        float(c.precision[best]),
+        float(c.recall[best]),
+        floor,
+        bool(floor > 0 and best == ok[-1] and len(ok) < len(c.threshold)),
+        float(f_tau),
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -304,28 +356,54 @@ def bin_rows(ev: Evidence, bins: Bins, tau: float, negatives_in_bin: bool, min_p
     for b, label in enumerate(bins.labels):
         pos, neg = base_pos & (k == b), ev.negative & (k == b) if negatives_in_bin else ev.negative
         p, n = ev.select(pos), ev.select(neg)
-        rows.append(BinRow(label, int(pos.sum()), len(set(p.unit)), int(p.censored.sum()),
-                           (quantile(p, 0.25), quantile(p, 0.5), quantile(p, 0.75)), share_at_least(p, tau),
-                           share_at_least(p, 0.5 * tau), int(neg.sum()), share_at_least(n, tau),
-                           share_at_least(n, 0.5 * tau), max_f_threshold(ev, pos, neg, tau, min_positives)))
+        rows.append(
+            BinRow(
+                label,
+                int(pos.sum()),
+                len(set(p.unit)),
+                int(p.censored.sum()),
+                (quantile(p, 0.25), quantile(p, 0.5), quantile(p, 0.75)),
+                share_at_least(p, tau),
+                share_at_least(p, 0.5 * tau),
+                int(neg.sum()),
+                share_at_least(n, tau),
+                share_at_least(n, 0.5 * tau),
+                max_f_threshold(ev, pos, neg, tau, min_positives),
+            )
+        )
     return rows
 
 
-
-def _analyse(name: str, ev: Evidence, frames: bool, tau: float, min_positives: int) -> tuple[str, dict, dict, list[str]]:
+def _analyse(
+    name: str, ev: Evidence, frames: bool, tau: float, min_positives: int
+) -> tuple[str, dict, dict, list[str]]:
     """Markdown tables, threshold rows, plot panels and conclusions of one data source."""
     from sim.evaluation.evidence_report import conclusion, score_table
 
     # a frame without the goal has no goal size: the frames' size rows use all negatives
-    size, dist = bin_rows(ev, SIZE_BINS, tau, not frames, min_positives), bin_rows(ev, DIST_BINS, tau, True, min_positives)
-    what = (f"apparent size (negatives: all {int(ev.negative.sum())} frames without the goal)", "distance to the goal "
-            "footprint") if frames else ("the smaller apparent size of the two", "the larger camera distance of the two")
-    md = (f"By {what[0]}:\n\n{score_table(size, 'episodes' if frames else 'instances', not frames)}\n\n"
-          f"By {what[1]}:\n\n{score_table(dist, 'episodes' if frames else 'instances', True)}")
+    size, dist = (
+        bin_rows(ev, SIZE_BINS, tau, not frames, min_positives),
+        bin_rows(ev, DIST_BINS, tau, True, min_positives),
+    )
+    what = (
+        (
+            f"apparent size (negatives: all {int(ev.negative.sum())} frames without the goal)",
+            "distance to the goal footprint",
+        )
+        if frames
+        else ("the smaller apparent size of the two", "the larger camera distance of the two")
+    )
+    md = (
+        f"By {what[0]}:\n\n{score_table(size, 'episodes' if frames else 'instances', not frames)}\n\n"
+        f"By {what[1]}:\n\n{score_table(dist, 'episodes' if frames else 'instances', True)}"
+    )
     notes = conclusion(f"{name}, by size", size, tau, min_positives, not frames)
-    return (md, {f"{name}, size": size, f"{name}, distance": dist},
-            {f"{name} by size": (ev, SIZE_BINS, size), f"{name} by distance": (ev, DIST_BINS, dist)},
-            notes + conclusion(f"{name}, by distance", dist, tau, min_positives, True))
+    return (
+        md,
+        {f"{name}, size": size, f"{name}, distance": dist},
+        {f"{name} by size": (ev, SIZE_BINS, size), f"{name} by distance": (ev, DIST_BINS, dist)},
+        notes + conclusion(f"{name}, by distance", dist, tau, min_positives, True),
+    )
 
 
 def _pairs(args: argparse.Namespace, out: Path) -> PairSample:
@@ -336,8 +414,14 @@ def _pairs(args: argparse.Namespace, out: Path) -> PairSample:
     if cached is not None and np.array_equal(cached["key"], key):
         log.info("pair scores reused from %s", cache)
         return PairSample(**{f.name: cached[f.name] for f in dataclasses.fields(PairSample)})
-    pairs = sample_pairs(args.pairs_instances, args.pairs_per_instance, args.pairs_negatives, args.scene_set,
-                         args.seed, threads=args.threads)
+    pairs = sample_pairs(
+        args.pairs_instances,
+        args.pairs_per_instance,
+        args.pairs_negatives,
+        args.scene_set,
+        args.seed,
+        threads=args.threads,
+    )
     np.savez_compressed(cache, key=key, **{f.name: getattr(pairs, f.name) for f in dataclasses.fields(pairs)})
     return pairs
 
@@ -345,14 +429,21 @@ def _pairs(args: argparse.Namespace, out: Path) -> PairSample:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--records", nargs="*", default=[], help="episodes.jsonl of train evaluations (modiin)")
-    ap.add_argument("--gate-thresholds", nargs="*", default=None,
-                    help="gate threshold per --records file ('none': gate off); default: from each run's variant")
+    ap.add_argument(
+        "--gate-thresholds",
+        nargs="*",
+        default=None,
+        help="gate threshold per --records file ('none': gate off); default: from each run's variant",
+    )
     ap.add_argument("--pairs-instances", type=int, default=0, help="train instances for goal-image pairs (0: no pairs)")
-    for flag, default, what in (("--pairs-per-instance", 6, "goal images per instance"),
-                                ("--pairs-negatives", 300, "different-instance pairs drawn"),
-                                ("--scene-set", 500, "train home set (imgnav calibrate's: the same goal images)"),
-                                ("--seed", 0, "pair sampling seed"), ("--threads", 1, "torch threads for the pairs"),
-                                ("--min-positives", 20, "positives a bin needs for a threshold (and 20 negatives)")):
+    for flag, default, what in (
+        ("--pairs-per-instance", 6, "goal images per instance"),
+        ("--pairs-negatives", 300, "different-instance pairs drawn"),
+        ("--scene-set", 500, "train home set (imgnav calibrate's: the same goal images)"),
+        ("--seed", 0, "pair sampling seed"),
+        ("--threads", 1, "torch threads for the pairs"),
+        ("--min-positives", 20, "positives a bin needs for a threshold (and 20 negatives)"),
+    ):
         ap.add_argument(flag, type=int, default=default, help=what)
     ap.add_argument("--out", default="runs/evidence")
     args = ap.parse_args(argv)
@@ -374,12 +465,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.records:
         ev = frames_evidence(args.records, tau, calibrated_gate, thr)
         report["frames"] = {"episodes": len(set(ev.unit)), "frames": len(ev), "censored": int(ev.censored.sum())}
-        parts = [("Frames", ev, f"{len(set(ev.unit))} episodes, {len(ev)} frames, {int(ev.censored.sum())} below the gate")]
+        parts = [
+            ("Frames", ev, f"{len(set(ev.unit))} episodes, {len(ev)} frames, {int(ev.censored.sum())} below the gate")
+        ]
         low = float(ev.gate_bound.min()) if len(ev) else 0.0
         if len(ev) and ev.gate_bound.max() > low:  # the lowest-gated run(s) alone are exact below the others' bound
             sub = ev.select(ev.gate_bound <= low)
-            parts.append((f"Frames, runs with gate bound {low:.1f} only", sub, f"{len(set(sub.unit))} episodes, "
-                          f"{len(sub)} frames, {int(sub.censored.sum())} below the gate"))
+            parts.append(
+                (
+                    f"Frames, runs with gate bound {low:.1f} only",
+                    sub,
+                    f"{len(set(sub.unit))} episodes, {len(sub)} frames, {int(sub.censored.sum())} below the gate",
+                )
+            )
         for name, sub, what in parts:
             md, n, p, c = _analyse(name, sub, True, tau, args.min_positives)
             sections.append(f"## {name} ({what})\n\n{md}")
@@ -387,18 +485,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.pairs_instances:
         ev = _pairs(args, out).evidence()
         md, n, p, c = _analyse("Pairs", ev, False, tau, args.min_positives)
-        sections.append(f"## Goal-image pairs ({len(set(ev.unit))} train instances x {args.pairs_per_instance} images: "
-                        f"{int(ev.positive.sum())} same, {int(ev.negative.sum())} different pairs)\n\n{md}")
+        sections.append(
+            f"## Goal-image pairs ({len(set(ev.unit))} train instances x {args.pairs_per_instance} images: "
+            f"{int(ev.positive.sum())} same, {int(ev.negative.sum())} different pairs)\n\n{md}"
+        )
         named, panels, notes = named | n, panels | p, notes + c
-    sections += [f"## Max-F threshold per bin (>= {args.min_positives} positives; '<= x (floor f)': best at the lowest "
-                 "threshold the gated frames allow; F depends on the bin's positive:negative ratio)\n\n"
-                 + threshold_table(named),
-                 "## Conclusion\n\n" + "\n".join(f"- {n}" for n in notes)]
-    md = f"# Distance-aware evidence (tau {tau:.1f}; a..b: a range where gated frames decide)\n\n" + "\n\n".join(sections) + "\n"
+    sections += [
+        f"## Max-F threshold per bin (>= {args.min_positives} positives; '<= x (floor f)': best at the lowest "
+        "threshold the gated frames allow; F depends on the bin's positive:negative ratio)\n\n"
+        + threshold_table(named),
+        "## Conclusion\n\n" + "\n".join(f"- {n}" for n in notes),
+    ]
+    md = (
+        f"# Distance-aware evidence (tau {tau:.1f}; a..b: a range where gated frames decide)\n\n"
+        + "\n\n".join(sections)
+        + "\n"
+    )
     (out / "evidence.md").write_text(md)
     report.update({k: [dataclasses.asdict(r) for r in v] for k, v in named.items()}, conclusion=notes)
     (out / "evidence.json").write_text(json.dumps(report, indent=1, default=float) + "\n")
-    plot(out / "evidence.png", panels, tau, "re-ID score (XFeat + LighterGlue, conf) against apparent size and distance")
+    plot(
+        out / "evidence.png", panels, tau, "re-ID score (XFeat + LighterGlue, conf) against apparent size and distance"
+    )
     print(md)
     return 0
 

@@ -22,8 +22,10 @@ def score_table(rows: list[BinRow], unit: str, with_negatives: bool) -> str:
         head += " negatives | neg >= tau | neg >= tau/2 |"
     lines = [head, "|" + " --- |" * (head.count("|") - 1)]
     for r in rows:
-        line = (f"| {r.label} | {r.positives} ({r.units}) | {r.censored} | {' / '.join(_r(q) for q in r.quartiles)} "
-                f"| {_r(r.pos_at_tau, True)} | {_r(r.pos_at_half_tau, True)} |")
+        line = (
+            f"| {r.label} | {r.positives} ({r.units}) | {r.censored} | {' / '.join(_r(q) for q in r.quartiles)} "
+            f"| {_r(r.pos_at_tau, True)} | {_r(r.pos_at_half_tau, True)} |"
+        )
         if with_negatives:
             line += f" {r.negatives} | {_r(r.neg_at_tau, True)} | {_r(r.neg_at_half_tau, True)} |"
         lines.append(line)
@@ -31,14 +33,25 @@ def score_table(rows: list[BinRow], unit: str, with_negatives: bool) -> str:
 
 
 def threshold_table(named_rows: dict[str, list[BinRow]]) -> str:
-    lines = ["| data | bin | positives | negatives | max-F threshold | F | precision | recall | F at tau |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| data | bin | positives | negatives | max-F threshold | F | precision | recall | F at tau |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name, rows in named_rows.items():
         for r in rows:
             m, head = r.max_f, f"| {name} | {r.label} | {r.positives} | {r.negatives} |"
-            thr = "" if m is None else f"<= {m.threshold:.1f} (floor {m.floor:.1f})" if m.at_floor else f"{m.threshold:.1f}"
-            lines.append(f"{head} too few samples | | | | |" if m is None else
-                         f"{head} {thr} | {m.f:.2f} | {m.precision:.2f} | {m.recall:.2f} | {m.f_at_tau:.2f} |")
+            thr = (
+                ""
+                if m is None
+                else f"<= {m.threshold:.1f} (floor {m.floor:.1f})"
+                if m.at_floor
+                else f"{m.threshold:.1f}"
+            )
+            lines.append(
+                f"{head} too few samples | | | | |"
+                if m is None
+                else f"{head} {thr} | {m.f:.2f} | {m.precision:.2f} | {m.recall:.2f} | {m.f_at_tau:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -55,26 +68,47 @@ def conclusion(name: str, rows: list[BinRow], tau: float, min_positives: int, wi
     peak = int(np.argmax(med))
     # steps within 15% count as level: a few episodes' frames are too correlated for finer claims
     drops = med[-1] < 0.85 * med[peak]
-    shape = (f"peaks at {ok[peak].label}" if drops and peak > 0 else
-             "rises" if med[-1] > 1.15 * med[0] and all(b >= 0.85 * a for a, b in zip(med, med[1:])) else
-             "falls" if med[-1] < 0.85 * med[0] and all(b <= 1.15 * a for a, b in zip(med, med[1:])) else
-             "shows no trend beyond 15%")
-    out = [f"{name}: the median true-goal score {shape} across bins ("
-           + ", ".join(f"{r.label} {_r(r.quartiles[1])}" for r in ok) + f"; tau {tau:.1f})."]
+    shape = (
+        f"peaks at {ok[peak].label}"
+        if drops and peak > 0
+        else "rises"
+        if med[-1] > 1.15 * med[0] and all(b >= 0.85 * a for a, b in zip(med, med[1:]))
+        else "falls"
+        if med[-1] < 0.85 * med[0] and all(b <= 1.15 * a for a, b in zip(med, med[1:]))
+        else "shows no trend beyond 15%"
+    )
+    out = [
+        f"{name}: the median true-goal score {shape} across bins ("
+        + ", ".join(f"{r.label} {_r(r.quartiles[1])}" for r in ok)
+        + f"; tau {tau:.1f})."
+    ]
     below = [r.label for r in ok if r.quartiles[1][1] < tau]
-    out.append(f"{name}: median below tau in " + (", ".join(below) if below else "no bin")
-               + "; share >= tau " + ", ".join(f"{r.label} {_r(r.pos_at_tau, True)}" for r in ok) + ".")
+    out.append(
+        f"{name}: median below tau in "
+        + (", ".join(below) if below else "no bin")
+        + "; share >= tau "
+        + ", ".join(f"{r.label} {_r(r.pos_at_tau, True)}" for r in ok)
+        + "."
+    )
     if drops and peak > 0:
-        out.append(f"{name}: beyond the peak the score drops ({ok[peak].label} {med[peak]:.0f} -> "
-                   f"{ok[-1].label} {med[-1]:.0f}).")
+        out.append(
+            f"{name}: beyond the peak the score drops ({ok[peak].label} {med[peak]:.0f} -> "
+            f"{ok[-1].label} {med[-1]:.0f})."
+        )
     if with_negatives:
         neg = [r for r in rows if r.negatives >= min_positives]
-        out.append(f"{name}: negatives >= tau " + ", ".join(f"{r.label} {_r(r.neg_at_tau, True)} of {r.negatives}"
-                                                             for r in neg) + ".")
+        out.append(
+            f"{name}: negatives >= tau "
+            + ", ".join(f"{r.label} {_r(r.neg_at_tau, True)} of {r.negatives}" for r in neg)
+            + "."
+        )
     fs = [r for r in rows if r.max_f is not None]
     if fs:
-        out.append(f"{name}: max-F thresholds " + ", ".join(
-            f"{r.label} {'<=' if r.max_f.at_floor else ''}{r.max_f.threshold:.0f}" for r in fs) + ".")
+        out.append(
+            f"{name}: max-F thresholds "
+            + ", ".join(f"{r.label} {'<=' if r.max_f.at_floor else ''}{r.max_f.threshold:.0f}" for r in fs)
+            + "."
+        )
     return out
 
 
@@ -108,14 +142,17 @@ def plot(path: Path, panels: dict[str, tuple[Evidence, Bins, list[BinRow]]], tau
         ax.plot([], [], c="navy", lw=2, label="median of positives (bins with 5+)")  # legend entries once
         ax.plot([], [], c="darkorange", lw=2, ls="--", label="max-F threshold per bin")
         ax.axhline(tau, color="k", ls=":", label=f"tau {tau:.1f}")
-        ax.set(title=name, ylabel="score (sum of confidences)",
-               xlabel="goal share of the image (%)" if size else "distance to the goal footprint (m)")
+        ax.set(
+            title=name,
+            ylabel="score (sum of confidences)",
+            xlabel="goal share of the image (%)" if size else "distance to the goal footprint (m)",
+        )
         ax.set_yscale("symlog", linthresh=10)
         ax.set_ylim(0, 1.3 * max(float(ev.score.max(initial=0.0)), 2 * tau))
         if size:
             ax.set_xscale("log")
             ax.set_xticks([0.03, 0.1, 0.3, 1, 3, 10, 30, 100], ["0.03", "0.1", "0.3", "1", "3", "10", "30", "100"])
             ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
-    save_figure(fig, axes.flat[:len(panels)], title, path)
+    save_figure(fig, axes.flat[: len(panels)], title, path)

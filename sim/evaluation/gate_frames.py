@@ -93,12 +93,19 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
     for i, (a, d) in enumerate(zip(frames["kp"], frames["desc"])):
         kp[i, : len(a)], desc[i, : len(d)], n_kp[i] = a, d, len(a)
     np.savez_compressed(
-        out_path, goal_kp=_as_numpy(goal.extra.get("kp_resized", goal.keypoints_xy)).astype(np.float32),
+        out_path,
+        goal_kp=_as_numpy(goal.extra.get("kp_resized", goal.keypoints_xy)).astype(np.float32),
         goal_desc=_as_numpy(goal.descriptors).astype(np.float16),
         goal_size_wh=np.asarray(goal.extra.get("size_resized_wh", goal.image_size_wh), np.float32),
-        kp=kp, desc=desc, n_kp=n_kp, size_wh=np.asarray(rec.last.extra.get("size_resized_wh", rec.last.image_size_wh), np.float32),
-        full=np.asarray(frames["full"], np.float32), searching=np.asarray(frames["searching"], bool),
-        goal_px=np.asarray(frames["goal_px"], np.int32), tau=np.float32(agent.tau))
+        kp=kp,
+        desc=desc,
+        n_kp=n_kp,
+        size_wh=np.asarray(rec.last.extra.get("size_resized_wh", rec.last.image_size_wh), np.float32),
+        full=np.asarray(frames["full"], np.float32),
+        searching=np.asarray(frames["searching"], bool),
+        goal_px=np.asarray(frames["goal_px"], np.int32),
+        tau=np.float32(agent.tau),
+    )
     return {"episode_id": episode.episode_id, "frames": n}
 
 

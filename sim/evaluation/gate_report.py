@@ -28,8 +28,11 @@ def shadow_frames(run_dir: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int
         if not line.strip():
             continue
         tr = (json.loads(line).get("modiin") or {}).get("trace") or {}
-        rows = [(f, g, e) for f, g, e in zip(tr.get("reid_score") or [], tr.get("gate_score") or [],
-                                             tr.get("exit_score") or []) if None not in (f, g, e)]
+        rows = [
+            (f, g, e)
+            for f, g, e in zip(tr.get("reid_score") or [], tr.get("gate_score") or [], tr.get("exit_score") or [])
+            if None not in (f, g, e)
+        ]
         episodes += bool(rows)
         for f, g, e in rows:
             full.append(f)
@@ -38,18 +41,23 @@ def shadow_frames(run_dir: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int
     return np.asarray(full, float), np.asarray(gate, float), np.asarray(exit_, float), episodes
 
 
-def report(full: np.ndarray, gate: np.ndarray, exit_: np.ndarray, tau: float, gate_thr: float, exit_thr: float,
-           ratio: float) -> list[str]:
-    lines = [f"{len(full)} frames; tau {tau:.4g}; first stage {gate_thr:g}, exit stage {exit_thr:.3g} "
-             f"(x {ratio:g} for potential evidence: {gate_thr * ratio:g}, {exit_thr * ratio:.3g})"]
+def report(
+    full: np.ndarray, gate: np.ndarray, exit_: np.ndarray, tau: float, gate_thr: float, exit_thr: float, ratio: float
+) -> list[str]:
+    lines = [
+        f"{len(full)} frames; tau {tau:.4g}; first stage {gate_thr:g}, exit stage {exit_thr:.3g} "
+        f"(x {ratio:g} for potential evidence: {gate_thr * ratio:g}, {exit_thr * ratio:.3g})"
+    ]
     for name, bar, scale in (("tau", tau, 1.0), (f"{ratio:g} tau", ratio * tau, ratio)):
         pos = full >= bar
         s1 = gate < gate_thr * scale
         s2 = exit_ < exit_thr * scale
         n = int(pos.sum())
-        lines.append(f"  frames >= {name}: {n}; dropped by the first stage {int((pos & s1).sum())}, by the exit stage "
-                     f"{int((pos & s2).sum())}, by either {int((pos & (s1 | s2)).sum())} "
-                     f"({(pos & (s1 | s2)).sum() / max(n, 1):.1%})")
+        lines.append(
+            f"  frames >= {name}: {n}; dropped by the first stage {int((pos & s1).sum())}, by the exit stage "
+            f"{int((pos & s2).sum())}, by either {int((pos & (s1 | s2)).sum())} "
+            f"({(pos & (s1 | s2)).sum() / max(n, 1):.1%})"
+        )
     g2 = ~(gate < gate_thr * ratio) & ~(exit_ < exit_thr * ratio)
     g1 = ~(gate < gate_thr * ratio)
     lines.append(f"  every layer would run on {g2.mean():.1%} of the frames (first stage alone: {g1.mean():.1%})")
@@ -73,8 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     for run in args.runs:
         full, gate, exit_, episodes = shadow_frames(run)
         if not len(full):
-            print(f"{run}: no frame with all three scores (run it with reid.gate=false, reid.gate_shadow=true)",
-                  file=sys.stderr)
+            print(
+                f"{run}: no frame with all three scores (run it with reid.gate=false, reid.gate_shadow=true)",
+                file=sys.stderr,
+            )
             return 2
         print(f"{run} ({episodes} episodes):")
         print("\n".join(report(full, gate, exit_, tau, gate_thr, exit_thr, ratio)))

@@ -35,8 +35,9 @@ import signal
 import sys
 import time
 from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 from sim.episodes import Episode, EpisodeSet
 
@@ -100,8 +101,12 @@ def connect(options: RayOptions) -> bool:
             ray.init(address=options.address, **kw)
     except ConnectionError as exc:
         raise ValueError(f"--ray {options.address}: cannot connect to a Ray cluster ({exc})") from exc
-    log.info("ray %s: %s CPUs, connected in %.1f s", options.address,
-             int(ray.cluster_resources().get("CPU", 0)), time.perf_counter() - t0)
+    log.info(
+        "ray %s: %s CPUs, connected in %.1f s",
+        options.address,
+        int(ray.cluster_resources().get("CPU", 0)),
+        time.perf_counter() - t0,
+    )
     return True
 
 
@@ -175,20 +180,31 @@ class _Scene:
     lost: int = 0
 
 
-def _payload(scene: _Scene, es: EpisodeSet, agent: str, args: argparse.Namespace, fail_fast: bool,
-             options: RayOptions) -> dict[str, Any]:
+def _payload(
+    scene: _Scene, es: EpisodeSet, agent: str, args: argparse.Namespace, fail_fast: bool, options: RayOptions
+) -> dict[str, Any]:
     attempts = dict(options.crash_before)
     crash = [e.episode_id for e in scene.episodes if scene.lost < attempts.get(e.episode_id, 0)]
     return {
-        "agent": agent, "args": args, "fail_fast": fail_fast, "crash_before": crash,
+        "agent": agent,
+        "args": args,
+        "fail_fast": fail_fast,
+        "crash_before": crash,
         "episodes": [e.to_json() for e in scene.episodes],
         "goal_png": [es.goal_image_path(e).read_bytes() for e in scene.episodes],
     }
 
 
-def run_scenes_on_ray(options: RayOptions, es: EpisodeSet, groups: Sequence[Sequence[str]], agent: str,
-                      args: argparse.Namespace, fail_fast: bool, write: Callable[[dict[str, Any]], None],
-                      is_done: Callable[[str], bool]) -> None:
+def run_scenes_on_ray(
+    options: RayOptions,
+    es: EpisodeSet,
+    groups: Sequence[Sequence[str]],
+    agent: str,
+    args: argparse.Namespace,
+    fail_fast: bool,
+    write: Callable[[dict[str, Any]], None],
+    is_done: Callable[[str], bool],
+) -> None:
     """Run the scene groups (lists of episode ids, one home each) as Ray tasks, calling
     ``write(record)`` on the driver for each finished episode (at most once per id)."""
     ray = import_ray()
@@ -216,7 +232,9 @@ def run_scenes_on_ray(options: RayOptions, es: EpisodeSet, groups: Sequence[Sequ
                 except StopIteration:
                     del in_flight[gen]
                     if scene.episodes:  # cannot happen with run_scene; never drop episodes silently
-                        raise RuntimeError(f"a Ray task ended without {[e.episode_id for e in scene.episodes]}")
+                        raise RuntimeError(
+                            f"a Ray task ended without {[e.episode_id for e in scene.episodes]}"
+                        ) from None
                     continue
                 except ray.exceptions.RayTaskError as exc:  # our code raised: stop, as local workers do
                     raise RuntimeError(f"an evaluation task failed: {exc}") from exc
@@ -228,19 +246,36 @@ def run_scenes_on_ray(options: RayOptions, es: EpisodeSet, groups: Sequence[Sequ
                     if not ids:  # lost after its last record: nothing left to run
                         continue
                     if scene.lost <= options.max_retries:
-                        log.warning("ray: task of scene %d lost (%s: %s); retry %d/%d with %d episode(s)",
-                                    scene.episodes[0].scene_seed, type(exc).__name__, _first_line(exc), scene.lost,
-                                    options.max_retries, len(ids))
+                        log.warning(
+                            "ray: task of scene %d lost (%s: %s); retry %d/%d with %d episode(s)",
+                            scene.episodes[0].scene_seed,
+                            type(exc).__name__,
+                            _first_line(exc),
+                            scene.lost,
+                            options.max_retries,
+                            len(ids),
+                        )
                         todo.appendleft(scene)
                     else:
-                        log.error("ray: task of scene %d lost %d times; recording %s as errors",
-                                  scene.episodes[0].scene_seed, scene.lost, ids)
+                        log.error(
+                            "ray: task of scene %d lost %d times; recording %s as errors",
+                            scene.episodes[0].scene_seed,
+                            scene.lost,
+                            ids,
+                        )
                         from sim.evaluation.runner import error_record
 
                         for e in scene.episodes:
                             if not is_done(e.episode_id):
-                                _emit(error_record(e, agent, f"{type(exc).__name__}: task lost {scene.lost} times "
-                                                              f"({_first_line(exc)})"), write, options)
+                                _emit(
+                                    error_record(
+                                        e,
+                                        agent,
+                                        f"{type(exc).__name__}: task lost {scene.lost} times ({_first_line(exc)})",
+                                    ),
+                                    write,
+                                    options,
+                                )
                                 n_failed += 1
                     continue
                 rec = item["record"]
@@ -256,8 +291,9 @@ def run_scenes_on_ray(options: RayOptions, es: EpisodeSet, groups: Sequence[Sequ
     finally:
         if disconnect:
             ray.shutdown()
-    log.info("ray: %d task(s), %d lost and retried or given up, %d episode(s) recorded as errors",
-             n_tasks, n_lost, n_failed)
+    log.info(
+        "ray: %d task(s), %d lost and retried or given up, %d episode(s) recorded as errors", n_tasks, n_lost, n_failed
+    )
 
 
 def _emit(rec: dict[str, Any], write: Callable[[dict[str, Any]], None], options: RayOptions) -> None:

@@ -23,8 +23,9 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -80,8 +81,9 @@ def score_chunk(reid_cfg: Any, image_keys: list[str], image_refs: list[Any], pai
             raise ValueError(f"goal image {image_keys[i]}: bytes are not an image")
         if len(_FEATURES) >= _CACHE_IMAGES:
             _FEATURES.pop(next(iter(_FEATURES)))
-        _FEATURES[(key, image_keys[i])] = matcher.extract(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB),
-                                                          reid_cfg.goal_max_keypoints)
+        _FEATURES[(key, image_keys[i])] = matcher.extract(
+            cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), reid_cfg.goal_max_keypoints
+        )
     extract_s = time.perf_counter() - t0
     feats = {i: _FEATURES[(key, image_keys[i])] for i in used}
     t0 = time.perf_counter()
@@ -94,8 +96,15 @@ def score_chunk(reid_cfg: Any, image_keys: list[str], image_refs: list[Any], pai
     return ChunkResult(conf, count, extract_s, time.perf_counter() - t0, len(missing))
 
 
-def score_pairs_on_ray(options: RayOptions, reid_cfg: Any, image_keys: Sequence[str], image_png: Sequence[bytes],
-                       pairs: np.ndarray, chunk_pairs: int = 200, progress: Any = None) -> tuple[np.ndarray, np.ndarray, dict]:
+def score_pairs_on_ray(
+    options: RayOptions,
+    reid_cfg: Any,
+    image_keys: Sequence[str],
+    image_png: Sequence[bytes],
+    pairs: np.ndarray,
+    chunk_pairs: int = 200,
+    progress: Any = None,
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """(conf, count) per pair as ``calibration_core.score_pairs`` computes them, plus timing
     (summed over the tasks): ``{"extract_s", "match_s", "extracted", "tasks", "wall_s"}``."""
     ray = import_ray()
@@ -109,7 +118,7 @@ def score_pairs_on_ray(options: RayOptions, reid_cfg: Any, image_keys: Sequence[
     count = np.zeros(len(pairs), np.float64)
     # sorted pairs: a chunk holds few first images, so fewer images per task
     order = np.lexsort((pairs[:, 1], pairs[:, 0]))
-    chunks = deque(order[k:k + chunk_pairs] for k in range(0, len(order), chunk_pairs))
+    chunks = deque(order[k : k + chunk_pairs] for k in range(0, len(order), chunk_pairs))
     stats = {"extract_s": 0.0, "match_s": 0.0, "extracted": 0, "tasks": len(chunks)}
     in_flight: dict[Any, np.ndarray] = {}
     try:
@@ -126,8 +135,9 @@ def score_pairs_on_ray(options: RayOptions, reid_cfg: Any, image_keys: Sequence[
                 try:
                     res: ChunkResult = ray.get(ref)
                 except ray.exceptions.RayError as exc:
-                    raise RuntimeError(f"a calibration chunk of {len(idx)} pairs failed after "
-                                       f"{options.max_retries} retries: {exc}") from exc
+                    raise RuntimeError(
+                        f"a calibration chunk of {len(idx)} pairs failed after {options.max_retries} retries: {exc}"
+                    ) from exc
                 conf[idx], count[idx] = res.conf, res.count
                 stats["extract_s"] += res.extract_s
                 stats["match_s"] += res.match_s

@@ -12,8 +12,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Protocol
 
 from agent.types import Action, Agent, AgentRecord, Observation
 
@@ -105,8 +106,12 @@ def all_specs() -> list[AgentSpec]:
 
 
 def _oracle_arguments(group: Any) -> None:
-    group.add_argument("--oracle-weight", type=float, default=None,
-                       help="A* heuristic weight of the oracle (1.0 = optimal on the motion lattice)")
+    group.add_argument(
+        "--oracle-weight",
+        type=float,
+        default=None,
+        help="A* heuristic weight of the oracle (1.0 = optimal on the motion lattice)",
+    )
 
 
 def _make_oracle(args: argparse.Namespace, oracle: Any) -> Agent:

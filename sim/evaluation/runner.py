@@ -53,8 +53,9 @@ import multiprocessing as mp
 import os
 import time
 import traceback
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -98,8 +99,14 @@ class _ObserverSink:
         pass
 
 
-def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Path, episode: Episode, spec: AgentSpec,
-                args: argparse.Namespace, fail_fast: bool = False) -> dict[str, Any]:
+def run_episode(
+    world: SimWorld,
+    goal_image: EpisodeSet | np.ndarray | str | Path,
+    episode: Episode,
+    spec: AgentSpec,
+    args: argparse.Namespace,
+    fail_fast: bool = False,
+) -> dict[str, Any]:
     """Run one episode in an already built world; returns its record.
 
     goal_image: the episode's goal image ((H, W, 3) uint8 RGB), its PNG path, or the episode set it is in."""
@@ -152,8 +159,11 @@ def run_episode(world: SimWorld, goal_image: EpisodeSet | np.ndarray | str | Pat
             "poses_world": [[r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)] for p in backend.trajectory_world],
             "actions": [int(a) for a in backend.actions],
         },
-        "timing": {"wall_s": r4(time.perf_counter() - t0), "agent_ms_per_step": r4(1000 * agent_s / steps),
-                   "sim_ms_per_step": r4(1000 * sim_s / steps)},
+        "timing": {
+            "wall_s": r4(time.perf_counter() - t0),
+            "agent_ms_per_step": r4(1000 * agent_s / steps),
+            "sim_ms_per_step": r4(1000 * sim_s / steps),
+        },
         "error": error,
     }
     if observer is not None and error is None:
@@ -186,8 +196,13 @@ def _clean_args(args: argparse.Namespace) -> argparse.Namespace:
     return argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
 
 
-def run_scene(episodes: list[Episode], goal_images: list[np.ndarray | str | Path], agent: str, args: argparse.Namespace,
-              fail_fast: bool = False) -> Iterator[dict[str, Any]]:
+def run_scene(
+    episodes: list[Episode],
+    goal_images: list[np.ndarray | str | Path],
+    agent: str,
+    args: argparse.Namespace,
+    fail_fast: bool = False,
+) -> Iterator[dict[str, Any]]:
     """Run episodes of one home (built once) in order, yielding each record as it finishes.
 
     The work unit of every evaluation backend (local, worker processes, Ray tasks)."""
@@ -218,14 +233,31 @@ def error_record(episode: Episode, agent: str, error: str) -> dict[str, Any]:
     from sim.metrics import episode_metrics
 
     p = episode.start_pose_world
-    m = episode_metrics(called_stop=False, stop_xy_m=(p.x_m, p.y_m), viewpoints_xy_m=episode.viewpoints_array(),
-                        steps=0, max_steps=MAX_STEPS, path_length_m=0.0, shortest_path_m=episode.geodesic_distance_m,
-                        stop_geodesic_m=episode.geodesic_distance_m)
+    m = episode_metrics(
+        called_stop=False,
+        stop_xy_m=(p.x_m, p.y_m),
+        viewpoints_xy_m=episode.viewpoints_array(),
+        steps=0,
+        max_steps=MAX_STEPS,
+        path_length_m=0.0,
+        shortest_path_m=episode.geodesic_distance_m,
+        stop_geodesic_m=episode.geodesic_distance_m,
+    )
     return {
-        "episode_id": episode.episode_id, "scene_seed": episode.scene_seed, "category": episode.goal_category,
-        "agent": agent, "success": m.success, "spl": r4(m.spl), "ne": r4(m.ne_m), "steps": 0,
-        "path_length_m": 0.0, "shortest_path_m": r4(m.shortest_path_m), "max_steps_reached": False,
-        "called_stop": False, "stop_reason": "error", "stop_to_viewpoint_m": r4(m.stop_to_viewpoint_m),
+        "episode_id": episode.episode_id,
+        "scene_seed": episode.scene_seed,
+        "category": episode.goal_category,
+        "agent": agent,
+        "success": m.success,
+        "spl": r4(m.spl),
+        "ne": r4(m.ne_m),
+        "steps": 0,
+        "path_length_m": 0.0,
+        "shortest_path_m": r4(m.shortest_path_m),
+        "max_steps_reached": False,
+        "called_stop": False,
+        "stop_reason": "error",
+        "stop_to_viewpoint_m": r4(m.stop_to_viewpoint_m),
         "difficulty": episode.info.get("difficulty"),
         "trajectory": {"poses_world": [[r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)]], "actions": []},
         "timing": {"wall_s": 0.0, "agent_ms_per_step": 0.0, "sim_ms_per_step": 0.0},
@@ -269,9 +301,18 @@ def read_records(out_dir: Path) -> list[dict[str, Any]]:
     return records
 
 
-def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace, out_dir: str | Path,
-                   limit: int | None = None, workers: int = 1, progress: bool = True, fail_fast: bool = False,
-                   ray: RayOptions | None = None, episode_ids: Sequence[str] | None = None) -> dict[str, Any]:
+def run_evaluation(
+    episode_dir: str | Path,
+    agent: str,
+    args: argparse.Namespace,
+    out_dir: str | Path,
+    limit: int | None = None,
+    workers: int = 1,
+    progress: bool = True,
+    fail_fast: bool = False,
+    ray: RayOptions | None = None,
+    episode_ids: Sequence[str] | None = None,
+) -> dict[str, Any]:
     """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary.
 
     ``episode_ids``: only these episodes of the set (in the set's order; an id the set does not
@@ -291,23 +332,29 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
         wanted = set(episode_ids)
         missing = sorted(wanted - {e.episode_id for e in selected})
         if missing:
-            raise ValueError(f"{episode_dir} has no episode(s) {', '.join(missing[:5])}"
-                             f"{' ...' if len(missing) > 5 else ''}")
+            raise ValueError(
+                f"{episode_dir} has no episode(s) {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}"
+            )
         selected = [e for e in selected if e.episode_id in wanted]
     selected = selected[:limit] if limit else selected
     done = {r["episode_id"]: r for r in read_records(out)}
     others = {r.get("agent") for r in done.values()} - {agent}
     if others:
-        raise ValueError(f"{out / RECORDS} holds records of agent(s) {sorted(others)}; use another --out or --overwrite")
+        raise ValueError(
+            f"{out / RECORDS} holds records of agent(s) {sorted(others)}; use another --out or --overwrite"
+        )
     todo = [e for e in selected if e.episode_id not in done]
     groups: dict[int, list[str]] = {}
     for e in todo:
         groups.setdefault(e.scene_seed, []).append(e.episode_id)
     if done:
         log.info("resuming: %d of %d episodes already done", len(selected) - len(todo), len(selected))
-    bar = tqdm(total=len(selected), initial=len(selected) - len(todo), desc=f"eval {agent}", unit="ep", disable=not progress)
+    bar = tqdm(
+        total=len(selected), initial=len(selected) - len(todo), desc=f"eval {agent}", unit="ep", disable=not progress
+    )
     t0 = time.perf_counter()
     with (out / RECORDS).open("a") as fh:
+
         def write(rec: dict[str, Any]) -> None:
             fh.write(json.dumps(_json_safe(rec)) + "\n")
             fh.flush()
@@ -333,8 +380,10 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
                 tasks.put(ids)
             for _ in range(n):
                 tasks.put(None)
-            procs = [ctx.Process(target=_worker_main, args=(str(episode_dir), agent, args, fail_fast, tasks, results))
-                     for _ in range(n)]
+            procs = [
+                ctx.Process(target=_worker_main, args=(str(episode_dir), agent, args, fail_fast, tasks, results))
+                for _ in range(n)
+            ]
             with _worker_thread_env(max(1, (os.cpu_count() or 1) // n)):
                 for p in procs:
                     p.start()
@@ -360,17 +409,19 @@ def run_evaluation(episode_dir: str | Path, agent: str, args: argparse.Namespace
     bar.close()
     records = [done[e.episode_id] for e in selected if e.episode_id in done]
     summary = aggregate([{**r, "ne": float(r["ne"])} for r in records])
-    summary.update({
-        "agent": agent,
-        "episode_set": str(episode_dir),
-        "split": es.split,
-        "errors": sum(1 for r in records if r.get("error")),
-        "timing": {
-            "wall_s_this_run": r4(time.perf_counter() - t0),
-            "agent_ms_per_step": r4(sum(r["timing"]["agent_ms_per_step"] for r in records) / max(len(records), 1)),
-            "sim_ms_per_step": r4(sum(r["timing"]["sim_ms_per_step"] for r in records) / max(len(records), 1)),
-        },
-    })
+    summary.update(
+        {
+            "agent": agent,
+            "episode_set": str(episode_dir),
+            "split": es.split,
+            "errors": sum(1 for r in records if r.get("error")),
+            "timing": {
+                "wall_s_this_run": r4(time.perf_counter() - t0),
+                "agent_ms_per_step": r4(sum(r["timing"]["agent_ms_per_step"] for r in records) / max(len(records), 1)),
+                "sim_ms_per_step": r4(sum(r["timing"]["sim_ms_per_step"] for r in records) / max(len(records), 1)),
+            },
+        }
+    )
     if spec.summarize:
         summary.update(dict(spec.summarize(records)))
     (out / SUMMARY).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")

@@ -67,8 +67,14 @@ def room_walls(x0: float, y0: float, x1: float, y1: float, height: float = 2.5, 
     ]
 
 
-def observation(boxes, pose: Pose2D, intrinsics: Intrinsics = SMALL_INTRINSICS, rgb: np.ndarray | None = None,
-                goal: np.ndarray | None = None, step: int = 0) -> Observation:
+def observation(
+    boxes,
+    pose: Pose2D,
+    intrinsics: Intrinsics = SMALL_INTRINSICS,
+    rgb: np.ndarray | None = None,
+    goal: np.ndarray | None = None,
+    step: int = 0,
+) -> Observation:
     depth = render_depth(boxes, pose, intrinsics)
     if rgb is None:
         rgb = np.zeros((intrinsics.height_px, intrinsics.width_px, 3), np.uint8)
@@ -81,8 +87,9 @@ class BoxWorld:
     """A tiny simulator for policy tests: box obstacles, exact depth, the task's discrete actions,
     a cylinder robot that does not slide (a blocked forward move leaves it in place)."""
 
-    def __init__(self, boxes, start: Pose2D, goal_box: int, radius_m: float = 0.17,
-                 intrinsics: Intrinsics = SMALL_INTRINSICS) -> None:
+    def __init__(
+        self, boxes, start: Pose2D, goal_box: int, radius_m: float = 0.17, intrinsics: Intrinsics = SMALL_INTRINSICS
+    ) -> None:
         self.boxes = list(boxes)
         self.start = start
         self.pose = start  # world frame
@@ -105,8 +112,14 @@ class BoxWorld:
         depth, ids = render_depth(self.boxes, self.pose, self.intrinsics, return_ids=True)
         self._ids = ids
         rgb = np.zeros((self.intrinsics.height_px, self.intrinsics.width_px, 3), np.uint8)
-        return Observation(rgb=rgb, depth_m=depth, pose=self.pose.relative_to(self.start),
-                           intrinsics=self.intrinsics, goal_image=np.zeros((64, 64, 3), np.uint8), step=self.step)
+        return Observation(
+            rgb=rgb,
+            depth_m=depth,
+            pose=self.pose.relative_to(self.start),
+            intrinsics=self.intrinsics,
+            goal_image=np.zeros((64, 64, 3), np.uint8),
+            step=self.step,
+        )
 
     def goal_mask(self, obs: Observation) -> np.ndarray:
         return self._ids == self.goal_box
@@ -116,11 +129,14 @@ class BoxWorld:
 
     def apply(self, action) -> None:
         from agent.types import Action
+
         self.step += 1
         p = self.pose
         if action == Action.MOVE_FORWARD:
             nx, ny = p.x_m + 0.25 * math.cos(p.yaw_rad), p.y_m + 0.25 * math.sin(p.yaw_rad)
-            if not any(self.collides(p.x_m + f * (nx - p.x_m), p.y_m + f * (ny - p.y_m)) for f in (0.25, 0.5, 0.75, 1.0)):
+            if not any(
+                self.collides(p.x_m + f * (nx - p.x_m), p.y_m + f * (ny - p.y_m)) for f in (0.25, 0.5, 0.75, 1.0)
+            ):
                 self.pose = Pose2D(nx, ny, p.yaw_rad)
         elif action == Action.TURN_LEFT:
             self.pose = p.compose(Pose2D(0, 0, math.radians(30)))
@@ -142,8 +158,9 @@ def obs_and_ids(pose: Pose2D = Pose2D()) -> tuple[Observation, np.ndarray]:
     """The observation from ``pose`` in the one-box room and each pixel's box index (-1: floor)."""
     depth, ids = render_depth(BOXES, pose, return_ids=True)
     rgb = np.zeros(depth.shape + (3,), np.uint8)
-    return Observation(rgb=rgb, depth_m=depth, pose=pose, intrinsics=SMALL_INTRINSICS,
-                       goal_image=np.zeros((64, 64, 3), np.uint8)), ids
+    return Observation(
+        rgb=rgb, depth_m=depth, pose=pose, intrinsics=SMALL_INTRINSICS, goal_image=np.zeros((64, 64, 3), np.uint8)
+    ), ids
 
 
 def two_rooms():

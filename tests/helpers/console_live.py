@@ -7,7 +7,6 @@ import threading
 from pathlib import Path
 from typing import Any
 
-
 from console.api import create_app
 from console.context import Console, ConsoleConfig
 from console.sim_provider import SimProvider, SimProviderConfig

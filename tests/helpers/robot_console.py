@@ -29,7 +29,9 @@ def stretch_console(data_dir: Path, fake: FakeStretch, viewer: bool = False, **r
     obs, action, state = fake.ports
     config = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
     provider = StretchProvider("127.0.0.1", robot_config=config)
-    return Console(ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider})
+    return Console(
+        ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider}
+    )
 
 
 def client_for(console: Console) -> TestClient:

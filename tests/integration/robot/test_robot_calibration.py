@@ -42,10 +42,14 @@ def write_calibration(calibration_dir: Path, tau: float = 6.0, **overrides) -> P
 
 def test_the_deployment_calibration_is_used_when_present(tmp_path: Path) -> None:
     path = write_calibration(tmp_path / "calibration", tau=6.0)
-    config, source = resolve_deployment_tau(load_agent_config("stretch"), Deployment("stretch", tmp_path / "calibration"))
+    config, source = resolve_deployment_tau(
+        load_agent_config("stretch"), Deployment("stretch", tmp_path / "calibration")
+    )
     assert resolve_tau(config.reid) == 6.0
     assert source["kind"] == "deployment_calibration" and source["path"] == str(path)
-    assert source["created"] == "2026-11-29T11:00:00Z" and source["same_pairs"] == 40 and source["different_pairs"] == 300
+    assert (
+        source["created"] == "2026-11-29T11:00:00Z" and source["same_pairs"] == 40 and source["different_pairs"] == 300
+    )
     assert source["source"].startswith("operator photos") and source["max_f"] == 0.8 and source["objects"] == 4
 
 
@@ -96,7 +100,9 @@ def test_a_stretch_run_records_its_tau_and_where_it_came_from(tmp_path: Path, ca
     fake = box_fake()
     obs, action, state = fake.ports
     robot = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0)
-    provider = StretchProvider("127.0.0.1", agent_deployment=Deployment("stretch", data / "calibration"), robot_config=robot)
+    provider = StretchProvider(
+        "127.0.0.1", agent_deployment=Deployment("stretch", data / "calibration"), robot_config=robot
+    )
     console = Console(ConsoleConfig(data_dir=data, viewer=None), {"stretch": provider})
     try:
         with client_for(console) as client:

@@ -11,8 +11,9 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -71,7 +72,9 @@ def home_scenario() -> Iterator[dict]:
 def test_console_run_on_the_fake_stretch_reaches_the_goal(home_scenario: dict, tmp_path: Path) -> None:
     from robot.fake_sim import SimFakeWorld
 
-    fake = FakeStretch(SimFakeWorld(home_scenario["world"], home_scenario["start"]), obs_port=0, action_port=0, state_port=0)
+    fake = FakeStretch(
+        SimFakeWorld(home_scenario["world"], home_scenario["start"]), obs_port=0, action_port=0, state_port=0
+    )
     fake.start()
     console = stretch_console(tmp_path / "data", fake, viewer=True)
     try:
@@ -202,7 +205,9 @@ class ScriptedStretchProvider(StretchProvider):
 
 def scripted_console(data_dir: Path, fake: FakeStretch, agent: ScriptedAgent, **robot: Any) -> Console:
     obs, action, state = fake.ports
-    config = StretchConfig(host="127.0.0.1", obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
+    config = StretchConfig(
+        host="127.0.0.1", obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot
+    )
     provider = ScriptedStretchProvider("127.0.0.1", config, agent)
     return Console(ConsoleConfig(data_dir=data_dir, viewer=None), {"stretch": provider})
 
@@ -210,7 +215,9 @@ def scripted_console(data_dir: Path, fake: FakeStretch, agent: ScriptedAgent, **
 def test_an_exhausted_agent_is_recorded_in_its_own_words(tmp_path: Path) -> None:
     fake = box_fake()
     why = "no reachable frontier and no goal candidate"
-    console = scripted_console(tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT, Action.MOVE_FORWARD], "exhausted", why))
+    console = scripted_console(
+        tmp_path / "data", fake, ScriptedAgent([Action.TURN_LEFT, Action.MOVE_FORWARD], "exhausted", why)
+    )
     try:
         with client_for(console) as client:
             run_id = start_run(client, any_photo(), max_steps=50)

@@ -17,12 +17,26 @@ from agent.types import Action, BackendError, Pose2D
 from robot.backend import StretchBackend
 from robot.config import StretchConfig
 
-READY = re.compile(r"observations (\d+), actions (\d+), state (\d+); start Pose2D\(x_m=([-\d.e]+), y_m=([-\d.e]+), yaw_rad=([-\d.e]+)\)")
+READY = re.compile(
+    r"observations (\d+), actions (\d+), state (\d+); start Pose2D\(x_m=([-\d.e]+), y_m=([-\d.e]+), yaw_rad=([-\d.e]+)\)"
+)
 
 
 def _start(*extra: str) -> tuple[subprocess.Popen, tuple[int, int, int]]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "console.cli", "fake-stretch", "--obs-port", "0", "--action-port", "0", "--state-port", "0", *extra],
+        [
+            sys.executable,
+            "-m",
+            "console.cli",
+            "fake-stretch",
+            "--obs-port",
+            "0",
+            "--action-port",
+            "0",
+            "--state-port",
+            "0",
+            *extra,
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -59,7 +73,9 @@ def test_fake_stretch_cli_serves_a_simulated_home_until_ctrl_c() -> None:
         with StretchBackend(np.zeros((30, 40, 3), np.uint8), config) as backend:
             first = backend.reset()
             assert first.rgb.shape == (640, 360, 3) and first.depth_m.max() > 0.5
-            assert first.camera_height_m == pytest.approx(1.31) and first.camera_tilt_rad == pytest.approx(0.0, abs=0.02)
+            assert first.camera_height_m == pytest.approx(1.31) and first.camera_tilt_rad == pytest.approx(
+                0.0, abs=0.02
+            )
             for action in (Action.TURN_LEFT, Action.TURN_LEFT, Action.TURN_RIGHT):
                 backend.apply(action)
             obs_after = backend.observe()
@@ -88,7 +104,20 @@ def test_fake_stretch_cli_starts_at_an_episode_start_and_reports_the_distance_to
 
     out = tmp_path / "episodes"
     subprocess.run(
-        [sys.executable, "-m", "console.cli", "episodes", "--split", "val", "--count", "1", "--out", str(out), "--workers", "1"],
+        [
+            sys.executable,
+            "-m",
+            "console.cli",
+            "episodes",
+            "--split",
+            "val",
+            "--count",
+            "1",
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+        ],
         check=True,
         capture_output=True,
         timeout=300,
@@ -104,5 +133,8 @@ def test_fake_stretch_cli_starts_at_an_episode_start_and_reports_the_distance_to
         code, rest = _stop(proc)
     assert code == 0
     assert "m from the nearest goal viewpoint" in rest, rest
-    expected = min(math.hypot(x - episode.start_pose_world.x_m, y - episode.start_pose_world.y_m) for x, y in episode.viewpoints_xy_m)
+    expected = min(
+        math.hypot(x - episode.start_pose_world.x_m, y - episode.start_pose_world.y_m)
+        for x, y in episode.viewpoints_xy_m
+    )
     assert f"{expected:.2f} m from the nearest goal viewpoint" in rest

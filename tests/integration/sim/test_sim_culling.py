@@ -29,7 +29,10 @@ def test_culled_renders_are_identical() -> None:
                 else:  # a pitched goal-style camera
                     cam = CameraSpec(256, 256, float(rng.uniform(60, 90)), 1.5, float(rng.uniform(0.2, 0.7)))
                     eye = (x, y, cam.height_m)
-                    a, b = culled.render_view(eye, yaw, cam.pitch_rad, cam), full.render_view(eye, yaw, cam.pitch_rad, cam)
+                    a, b = (
+                        culled.render_view(eye, yaw, cam.pitch_rad, cam),
+                        full.render_view(eye, yaw, cam.pitch_rad, cam),
+                    )
                 assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth_m, b.depth_m)
                 assert np.array_equal(a.instance_ids, b.instance_ids)
         finally:

@@ -28,8 +28,14 @@ def _oracle_result(world: SimWorld, episode, goal_path: Path):
     agent.reset(_BLANK)
     intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
     while not backend.done:
-        obs = Observation(rgb=_BLANK, depth_m=np.zeros((1, 1), np.float32), pose=Pose2D(), intrinsics=intr,
-                          goal_image=_BLANK, step=backend.steps)
+        obs = Observation(
+            rgb=_BLANK,
+            depth_m=np.zeros((1, 1), np.float32),
+            pose=Pose2D(),
+            intrinsics=intr,
+            goal_image=_BLANK,
+            step=backend.steps,
+        )
         backend.apply(agent.act(obs))
     return backend.result()
 
@@ -63,5 +69,6 @@ def test_a_start_the_oracle_does_not_solve_is_replaced(tmp_path: Path, monkeypat
     eps = generate_episode_set("train", 902, 2, tmp_path, EpisodeGenConfig(episodes_per_scene=2), progress=False)
     assert len(eps) == 2 and refused
     refused_starts = {(p.x_m, p.y_m, p.yaw_rad) for p, _ in refused}
-    assert all((e.start_pose_world.x_m, e.start_pose_world.y_m, e.start_pose_world.yaw_rad) not in refused_starts
-               for e in eps)
+    assert all(
+        (e.start_pose_world.x_m, e.start_pose_world.y_m, e.start_pose_world.yaw_rad) not in refused_starts for e in eps
+    )

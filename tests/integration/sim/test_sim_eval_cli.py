@@ -15,7 +15,18 @@ def test_eval_writes_records_and_resumes(small_episode_set: Path, tmp_path: Path
     lines = (out / "episodes.jsonl").read_text().splitlines()
     assert len(lines) == 2
     rec = json.loads(lines[0])
-    for key in ("episode_id", "category", "success", "spl", "ne", "steps", "path_length_m", "trajectory", "stop_reason", "timing"):
+    for key in (
+        "episode_id",
+        "category",
+        "success",
+        "spl",
+        "ne",
+        "steps",
+        "path_length_m",
+        "trajectory",
+        "stop_reason",
+        "timing",
+    ):
         assert key in rec
     assert rec["success"] and rec["stop_reason"] == "stop"
     assert len(rec["trajectory"]["poses_world"]) == rec["steps"] + 1 == len(rec["trajectory"]["actions"]) + 1
@@ -42,14 +53,36 @@ def test_show_draws_a_map_with_the_path_and_a_goal_sheet(small_episode_set: Path
     from sim.episodes import load_episode_set, read_rgb
 
     out = tmp_path / "eval"
-    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "1", "--out", str(out)]) == 0
+    assert (
+        main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "1", "--out", str(out)])
+        == 0
+    )
     episode = load_episode_set(small_episode_set).episodes[0]
     pics = tmp_path / "show"
-    assert main(["show", "--episodes", str(small_episode_set), "--episode", episode.episode_id, "--eval", str(out),
-                 "--out", str(pics)]) == 0
+    assert (
+        main(
+            [
+                "show",
+                "--episodes",
+                str(small_episode_set),
+                "--episode",
+                episode.episode_id,
+                "--eval",
+                str(out),
+                "--out",
+                str(pics),
+            ]
+        )
+        == 0
+    )
     assert main(["show", "--episodes", str(small_episode_set), "--out", str(pics)]) == 0
     assert main(["show", "--scene", str(episode.scene_seed), "--out", str(pics)]) == 0
-    for name in (f"map-{episode.episode_id}.png", f"goal-{episode.episode_id}.png", "goals.png", f"map-{episode.scene_seed}.png"):
+    for name in (
+        f"map-{episode.episode_id}.png",
+        f"goal-{episode.episode_id}.png",
+        "goals.png",
+        f"map-{episode.scene_seed}.png",
+    ):
         img = read_rgb(pics / name)
         assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10, name
     assert main(["show", "--out", str(pics)]) == 2  # nothing to draw
@@ -63,13 +96,42 @@ def test_eval_runs_only_the_named_episodes(small_episode_set: Path, tmp_path: Pa
     out = tmp_path / "some"
     listed = tmp_path / "ids.txt"
     listed.write_text(f"# re-run these\n{ids[2]}\n")
-    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--episode-ids", ids[0], f"@{listed}",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--episodes",
+                str(small_episode_set),
+                "--agent",
+                "oracle",
+                "--episode-ids",
+                ids[0],
+                f"@{listed}",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     got = [json.loads(x)["episode_id"] for x in (out / "episodes.jsonl").read_text().splitlines()]
     assert sorted(got) == sorted([ids[0], ids[2]])
     assert json.loads((out / "summary.json").read_text())["episodes"] == 2
     # an id the set does not hold is a clear error, and nothing is run
     bad = tmp_path / "bad"
-    assert main(["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--episode-ids", "val-s9-9999-9",
-                 "--out", str(bad)]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--episodes",
+                str(small_episode_set),
+                "--agent",
+                "oracle",
+                "--episode-ids",
+                "val-s9-9999-9",
+                "--out",
+                str(bad),
+            ]
+        )
+        == 2
+    )
     assert not (bad / "episodes.jsonl").exists() or not (bad / "episodes.jsonl").read_text().strip()

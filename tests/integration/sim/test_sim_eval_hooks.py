@@ -25,7 +25,9 @@ class _TurnThenStop:
         if self.explode and self.k == 1:
             raise RuntimeError("planner exploded")
         action = Action.TURN_LEFT if self.k < self.turns else Action.STOP
-        self._record = AgentRecord(step=obs.step, action=action, pose=obs.pose, mode="test", reason="", reid_score=0.1 * self.k)
+        self._record = AgentRecord(
+            step=obs.step, action=action, pose=obs.pose, mode="test", reason="", reid_score=0.1 * self.k
+        )
         self.k += 1
         return action
 
@@ -45,17 +47,28 @@ class _Observer:
         self.goal_pixels += int(self.oracle.goal_mask().sum())
 
     def finish(self, episode_record):
-        return {"failure_cause": "never moved" if episode_record["path_length_m"] == 0 else "other",
-                "max_reid": max(self.scores), "goal_pixels_seen": self.goal_pixels}
+        return {
+            "failure_cause": "never moved" if episode_record["path_length_m"] == 0 else "other",
+            "max_reid": max(self.scores),
+            "goal_pixels_seen": self.goal_pixels,
+        }
 
 
 @pytest.fixture(autouse=True)
 def _specs():
-    registry.register(registry.AgentSpec(
-        "test-turner", "turns then stops", lambda args, oracle: _TurnThenStop(args.turner_turns),
-        add_arguments=lambda g: g.add_argument("--turner-turns", type=int, default=2),
-        make_observer=_Observer, summarize=lambda recs: {"causes": sorted({r["failure_cause"] for r in recs})}))
-    registry.register(registry.AgentSpec("test-exploder", "raises", lambda args, oracle: _TurnThenStop(3, explode=True)))
+    registry.register(
+        registry.AgentSpec(
+            "test-turner",
+            "turns then stops",
+            lambda args, oracle: _TurnThenStop(args.turner_turns),
+            add_arguments=lambda g: g.add_argument("--turner-turns", type=int, default=2),
+            make_observer=_Observer,
+            summarize=lambda recs: {"causes": sorted({r["failure_cause"] for r in recs})},
+        )
+    )
+    registry.register(
+        registry.AgentSpec("test-exploder", "raises", lambda args, oracle: _TurnThenStop(3, explode=True))
+    )
     yield
     registry._REGISTRY.pop("test-turner", None)
     registry._REGISTRY.pop("test-exploder", None)
@@ -75,13 +88,22 @@ def test_hooks_add_fields_to_records_and_summary(small_episode_set: Path, tmp_pa
 
 
 def test_agent_errors_are_recorded_not_swallowed(small_episode_set: Path, tmp_path: Path) -> None:
-    summary = run_evaluation(small_episode_set, "test-exploder", argparse.Namespace(), tmp_path / "e", limit=1, progress=False)
+    summary = run_evaluation(
+        small_episode_set, "test-exploder", argparse.Namespace(), tmp_path / "e", limit=1, progress=False
+    )
     rec = json.loads((tmp_path / "e" / "episodes.jsonl").read_text())
     assert rec["error"] == "RuntimeError: planner exploded" and rec["stop_reason"] == "error" and not rec["success"]
     assert summary["errors"] == 1
     with pytest.raises(RuntimeError):
-        run_evaluation(small_episode_set, "test-exploder", argparse.Namespace(), tmp_path / "f", limit=1,
-                       progress=False, fail_fast=True)
+        run_evaluation(
+            small_episode_set,
+            "test-exploder",
+            argparse.Namespace(),
+            tmp_path / "f",
+            limit=1,
+            progress=False,
+            fail_fast=True,
+        )
 
 
 def test_plugins_are_optional_but_not_their_imports(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -23,12 +23,15 @@ def test_goal_images_show_the_instance_large_and_central() -> None:
             if imgs:
                 chosen[inst.category] = (inst.object_id, imgs)
         assert len(chosen) >= 4, sorted(chosen)
-        for cat, (iid, imgs) in chosen.items():
+        for iid, imgs in chosen.values():
             for g in imgs:
                 assert g.rgb.shape == (512, 512, 3) and g.rgb.dtype == np.uint8 and g.instance_id == iid
                 assert cfg.min_coverage <= g.coverage <= cfg.max_coverage and g.mask.mean() == g.coverage
                 rows, cols = np.nonzero(g.mask)
-                assert abs(rows.mean() / 512 - 0.5) <= cfg.max_centre_offset and abs(cols.mean() / 512 - 0.5) <= cfg.max_centre_offset
+                assert (
+                    abs(rows.mean() / 512 - 0.5) <= cfg.max_centre_offset
+                    and abs(cols.mean() / 512 - 0.5) <= cfg.max_centre_offset
+                )
                 assert not g.shows_distractor
                 assert cfg.hfov_deg[0] <= g.camera.hfov_deg <= cfg.hfov_deg[1]
                 assert cfg.eye_height_m[0] <= g.camera.eye_xyz_m[2] <= cfg.eye_height_m[1]

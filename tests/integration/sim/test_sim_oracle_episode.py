@@ -42,9 +42,14 @@ def test_oracle_solves_an_episode(small_episode_set: Path) -> None:
         m = backend.result()
         assert m is not None and m.success and m.called_stop and m.steps < MAX_STEPS
         assert m.spl >= 0.8 and m.ne_m < 0.15
-        assert m.path_length_m == pytest.approx(0.25 * sum(
-            1 for a, p, q in zip(backend.actions, backend.trajectory_world, backend.trajectory_world[1:])
-            if a == Action.MOVE_FORWARD and p != q))
+        assert m.path_length_m == pytest.approx(
+            0.25
+            * sum(
+                1
+                for a, p, q in zip(backend.actions, backend.trajectory_world, backend.trajectory_world[1:])
+                if a == Action.MOVE_FORWARD and p != q
+            )
+        )
         with pytest.raises(BackendError) as exc:
             backend.apply(Action.MOVE_FORWARD)
         assert exc.value.reason == "episode_over"

@@ -7,7 +7,7 @@ has to wait for the fake to reach a state it polls with a deadline too.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pytest

@@ -92,7 +92,7 @@ def test_fake_drops_actions_without_a_newer_step(make_fake) -> None:
     msg_unstamped = {k: v for k, v in move_message(goal, step=0).items() if k != "step"}
     for m in (msg, msg_unstamped):
         deadline = time.monotonic() + 0.5
-        _send_raw(fake.ports[1], m, lambda: time.monotonic() > deadline)
+        _send_raw(fake.ports[1], m, lambda: time.monotonic() > deadline)  # noqa: B023 (used in this iteration)
     assert fake.actions == [] and fake.pose_world.distance_to(Pose2D(0.5, 0.3, 0.4)) == 0.0
     _send_raw(fake.ports[1], move_message(goal, step=11), lambda: fake.handled_step == 11)
     assert fake.pose_world.distance_to(goal) < 1e-9

@@ -80,7 +80,13 @@ def test_relative_pose_round_trip(a: Pose2D, b: Pose2D) -> None:
 
 def test_parse_state_and_observation() -> None:
     state = protocol.parse_state(
-        {"base_pose": np.array([1.0, 2.0, 3.5]), "is_homed": True, "is_runstopped": np.bool_(False), "step": 4, "at_goal": True},
+        {
+            "base_pose": np.array([1.0, 2.0, 3.5]),
+            "is_homed": True,
+            "is_runstopped": np.bool_(False),
+            "step": 4,
+            "at_goal": True,
+        },
         received_s=5.0,
     )
     assert state.base_world.yaw_rad == pytest.approx(3.5 - 2 * math.pi)

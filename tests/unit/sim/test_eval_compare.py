@@ -6,9 +6,17 @@ from sim.evaluation.compare import compare, load_records, main, paired_differenc
 
 
 def rec(eid, home, success, spl=None, cause=None, variant="v"):
-    return {"episode_id": eid, "scene_seed": home, "success": success, "spl": (0.5 if success else 0.0) if spl is None else spl,
-            "ne": 0.1 if success else 3.0, "max_steps_reached": False, "category": "chair",
-            "failure_cause": None if success else cause, "variant": variant}
+    return {
+        "episode_id": eid,
+        "scene_seed": home,
+        "success": success,
+        "spl": (0.5 if success else 0.0) if spl is None else spl,
+        "ne": 0.1 if success else 3.0,
+        "max_steps_reached": False,
+        "category": "chair",
+        "failure_cause": None if success else cause,
+        "variant": variant,
+    }
 
 
 def write(tmp_path, name, records):
@@ -18,14 +26,29 @@ def write(tmp_path, name, records):
     return str(d)
 
 
-BASE = [rec("a0", 1, True), rec("a1", 1, False, cause="reid_false_negative"),
-        rec("b0", 2, False, cause="local_navigation"), rec("b1", 2, True)]
+BASE = [
+    rec("a0", 1, True),
+    rec("a1", 1, False, cause="reid_false_negative"),
+    rec("b0", 2, False, cause="local_navigation"),
+    rec("b1", 2, True),
+]
 
 
 def test_paired_difference_counts_wins_and_losses_on_the_same_episodes(tmp_path):
     base = load_records(write(tmp_path, "base", BASE))
-    var = load_records(write(tmp_path, "var", [rec("a0", 1, True), rec("a1", 1, True), rec("b0", 2, True),
-                                               rec("b1", 2, False, cause="exploration"), rec("c0", 3, True)]))
+    var = load_records(
+        write(
+            tmp_path,
+            "var",
+            [
+                rec("a0", 1, True),
+                rec("a1", 1, True),
+                rec("b0", 2, True),
+                rec("b1", 2, False, cause="exploration"),
+                rec("c0", 3, True),
+            ],
+        )
+    )
     p = paired_difference(base, var)
     assert p.episodes == 4 and p.homes == 2  # c0 is not in the base: not compared
     assert (p.won, p.lost) == (2, 1)
@@ -51,11 +74,18 @@ def test_compare_tables_use_only_the_common_episodes(tmp_path):
 
 def test_same_actions_and_cost_against_the_first_run(tmp_path):
     def timed(eid, home, actions, wall_s, agent_ms):
-        return {**rec(eid, home, True), "trajectory": {"actions": actions},
-                "timing": {"wall_s": wall_s, "agent_ms_per_step": agent_ms, "sim_ms_per_step": 50.0}}
+        return {
+            **rec(eid, home, True),
+            "trajectory": {"actions": actions},
+            "timing": {"wall_s": wall_s, "agent_ms_per_step": agent_ms, "sim_ms_per_step": 50.0},
+        }
 
     b = write(tmp_path, "base", [timed("a0", 1, [1, 2, 0], 100.0, 90.0), timed("b0", 2, [3, 0], 200.0, 110.0)])
-    v = write(tmp_path, "var", [timed("a0", 1, [1, 2, 0], 50.0, 40.0), timed("b0", 2, [3, 1, 0], 100.0, 60.0)],)
+    v = write(
+        tmp_path,
+        "var",
+        [timed("a0", 1, [1, 2, 0], 50.0, 40.0), timed("b0", 2, [3, 1, 0], 100.0, 60.0)],
+    )
     rows = [line for line in compare([b, v]).splitlines() if line.startswith("| ")]
     assert any(r.startswith(f"| {v} (v) |") and r.rstrip().endswith("| 0 | 0 | 1 of 2 |") for r in rows)
     # base: 2 episodes in 300 s = 24 per hour, agent median 100 ms; variant: 48 per hour, twice the rate

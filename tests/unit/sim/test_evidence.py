@@ -19,9 +19,15 @@ GATE = 36.0  # the calibrated gate threshold: a run gated at 36 hides scores < t
 
 
 def record(episode_id: str, scores, gates, px, dist, variant: str = "reid=conf, loc=mask", **extra) -> str:
-    return json.dumps({"episode_id": episode_id, "scene_seed": 3, "variant": variant, **extra,
-                       "modiin": {"trace": {"reid_score": scores, "gate_score": gates, "goal_px": px,
-                                            "goal_dist_m": dist}}})
+    return json.dumps(
+        {
+            "episode_id": episode_id,
+            "scene_seed": 3,
+            "variant": variant,
+            **extra,
+            "modiin": {"trace": {"reid_score": scores, "gate_score": gates, "goal_px": px, "goal_dist_m": dist}},
+        }
+    )
 
 
 def frames(tmp_path: Path, lines: list[str], gate: float | None = GATE) -> evd.Evidence:
@@ -33,10 +39,18 @@ def frames(tmp_path: Path, lines: list[str], gate: float | None = GATE) -> evd.E
 def synthetic(score, positive, censored=None, bound=0.0, dist=None) -> evd.Evidence:
     n = len(score)
     positive = np.asarray(positive, bool)
-    return evd.Evidence(score=np.asarray(score, float), censored=np.zeros(n, bool) if censored is None else np.asarray(censored),
-                        gate_bound=np.full(n, bound), share=np.where(positive, 0.05, 0.0),
-                        dist_m=np.full(n, 1.5) if dist is None else np.asarray(dist, float), positive=positive,
-                        glimpse=np.zeros(n, bool), negative=~positive, weight=np.ones(n), unit=np.array(["e"] * n, object))
+    return evd.Evidence(
+        score=np.asarray(score, float),
+        censored=np.zeros(n, bool) if censored is None else np.asarray(censored),
+        gate_bound=np.full(n, bound),
+        share=np.where(positive, 0.05, 0.0),
+        dist_m=np.full(n, 1.5) if dist is None else np.asarray(dist, float),
+        positive=positive,
+        glimpse=np.zeros(n, bool),
+        negative=~positive,
+        weight=np.ones(n),
+        unit=np.array(["e"] * n, object),
+    )
 
 
 def test_bins_are_left_closed_and_drop_nan() -> None:
@@ -47,9 +61,18 @@ def test_bins_are_left_closed_and_drop_nan() -> None:
 
 
 def test_a_gated_zero_is_censored_below_the_runs_gate_bound(tmp_path: Path) -> None:
-    ev = frames(tmp_path, [record("train-s0-0000-0", [0.0, 0.0, 0.0, 0.12, None, 50.0],
-                                  [10.0, 40.0, None, 24.0, 3.0, 90.0], [3000, 0, 0, 0, 0, 5000],
-                                  [1.0, 2.0, 3.0, 4.0, 5.0, 0.5])])
+    ev = frames(
+        tmp_path,
+        [
+            record(
+                "train-s0-0000-0",
+                [0.0, 0.0, 0.0, 0.12, None, 50.0],
+                [10.0, 40.0, None, 24.0, 3.0, 90.0],
+                [3000, 0, 0, 0, 0, 5000],
+                [1.0, 2.0, 3.0, 4.0, 5.0, 0.5],
+            )
+        ],
+    )
     # gate 10 < 36 and score 0: hidden; gate 40 or no gate score: a measured 0; 0.12: the matcher ran
     assert ev.censored.tolist() == [True, False, False, False, False]
     assert np.allclose(ev.gate_bound, TAU) and ev.positive.tolist() == [True, False, False, False, True]
@@ -80,8 +103,10 @@ def test_gate_threshold_is_rebuilt_from_the_runs_variant() -> None:
     from agent.configio import to_dict
 
     cfg = load_agent_config("sim")
-    carried = {"variant": "reid=conf, loc=mask",
-               "agent_config": to_dict(replace(cfg, policy=replace(cfg.policy, potential_tau_ratio=0.25)))}
+    carried = {
+        "variant": "reid=conf, loc=mask",
+        "agent_config": to_dict(replace(cfg, policy=replace(cfg.policy, potential_tau_ratio=0.25))),
+    }
     assert evd.gate_threshold_of(carried) == pytest.approx(0.25 * base)
 
 
@@ -111,8 +136,18 @@ def test_max_f_threshold_is_searched_above_the_gate_bound_only() -> None:
 def test_bin_rows_size_uses_glimpses_and_all_negatives(tmp_path: Path) -> None:
     px = [500] * 3 + [10000] * 2 + [0] * 4
     dist = [4.0] * 3 + [1.5] * 2 + [1.5, 1.5, 4.0, 6.0]
-    ev = frames(tmp_path, [record("train-s0-0000-0", [1.0] * 3 + [90.0] * 2 + [0.0, 80.0, 0.0, 0.0],
-                                  [50.0] * 5 + [10.0, 80.0, 50.0, 50.0], px, dist)])
+    ev = frames(
+        tmp_path,
+        [
+            record(
+                "train-s0-0000-0",
+                [1.0] * 3 + [90.0] * 2 + [0.0, 80.0, 0.0, 0.0],
+                [50.0] * 5 + [10.0, 80.0, 50.0, 50.0],
+                px,
+                dist,
+            )
+        ],
+    )
     size = evd.bin_rows(ev, evd.SIZE_BINS, TAU, negatives_in_bin=False, min_positives=1)
     assert [r.positives for r in size] == [3, 0, 2, 0, 0] and all(r.negatives == 4 for r in size)
     assert size[2].pos_at_tau == (1.0, 1.0) and size[2].neg_at_tau == (0.25, 0.25)
@@ -135,8 +170,16 @@ def test_val_and_test_records_are_refused(tmp_path: Path) -> None:
 
 
 def test_cli_writes_tables_marks_thin_bins_and_plots(tmp_path: Path) -> None:
-    lines = [record(f"train-s0-0000-{k}", [90.0, 60.0, 0.0, 5.0] * 6, [80.0, 60.0, 10.0, 40.0] * 6,
-                    [30000, 4000, 0, 0] * 6, [0.8, 2.5, 2.5, 2.5] * 6) for k in range(2)]
+    lines = [
+        record(
+            f"train-s0-0000-{k}",
+            [90.0, 60.0, 0.0, 5.0] * 6,
+            [80.0, 60.0, 10.0, 40.0] * 6,
+            [30000, 4000, 0, 0] * 6,
+            [0.8, 2.5, 2.5, 2.5] * 6,
+        )
+        for k in range(2)
+    ]
     rec = tmp_path / "episodes.jsonl"
     rec.write_text("\n".join(lines) + "\n")
     out = tmp_path / "out"
@@ -151,25 +194,41 @@ def test_conclusion_names_the_peak_and_the_bins_below_tau() -> None:
     from sim.evaluation.evidence_report import conclusion
 
     scores = [[10.0] * 20, [120.0] * 20, [40.0] * 20]  # small views weak, mid strong, close views weaker again
-    rows = [evd.BinRow(label, 20, 5, 0, ((s[0], s[0]),) * 3, (0.0, 0.0), (0.0, 0.0), 0, (0.0, 0.0), (0.0, 0.0), None)
-            for label, s in zip(("a", "b", "c"), scores)]
+    rows = [
+        evd.BinRow(label, 20, 5, 0, ((s[0], s[0]),) * 3, (0.0, 0.0), (0.0, 0.0), 0, (0.0, 0.0), (0.0, 0.0), None)
+        for label, s in zip(("a", "b", "c"), scores)
+    ]
     text = " ".join(conclusion("X", rows, TAU, 20, False))
     assert "peaks at b" in text and "median below tau in a, c" in text and "(b 120 -> c 40)" in text
 
 
 def test_records_without_distances_leave_the_distance_bins_empty(tmp_path: Path) -> None:
     p = tmp_path / "episodes.jsonl"
-    p.write_text(json.dumps({"episode_id": "train-s0-0000-0", "variant": "reid=conf, loc=mask", "modiin": {
-        "trace": {"reid_score": [90.0, 1.0], "gate_score": [80.0, 50.0], "goal_px": [5000, 0]}}}) + "\n")
+    p.write_text(
+        json.dumps(
+            {
+                "episode_id": "train-s0-0000-0",
+                "variant": "reid=conf, loc=mask",
+                "modiin": {"trace": {"reid_score": [90.0, 1.0], "gate_score": [80.0, 50.0], "goal_px": [5000, 0]}},
+            }
+        )
+        + "\n"
+    )
     ev = evd.frames_evidence([p], TAU, GATE, [GATE])
     assert np.isnan(ev.dist_m).all()
     assert all(r.positives == 0 and r.negatives == 0 for r in evd.bin_rows(ev, evd.DIST_BINS, TAU, True))
 
 
 def test_a_pair_is_binned_by_its_harder_image() -> None:
-    ps = evd.PairSample(pairs=np.array([[0, 1], [0, 2]]), label=np.array([True, False]), weight=np.array([1.0, 8.0]),
-                        conf=np.array([120.0, 3.0]), share=np.array([0.25, 0.08, 0.4]), dist_m=np.array([1.2, 0.7, 2.5]),
-                        instance=np.array(["h_1", "h_1", "h_2"]))
+    ps = evd.PairSample(
+        pairs=np.array([[0, 1], [0, 2]]),
+        label=np.array([True, False]),
+        weight=np.array([1.0, 8.0]),
+        conf=np.array([120.0, 3.0]),
+        share=np.array([0.25, 0.08, 0.4]),
+        dist_m=np.array([1.2, 0.7, 2.5]),
+        instance=np.array(["h_1", "h_1", "h_2"]),
+    )
     ev = ps.evidence()
     assert ev.share.tolist() == [0.08, 0.25] and ev.dist_m.tolist() == [1.2, 2.5]
     assert ev.positive.tolist() == [True, False] and ev.negative.tolist() == [False, True]

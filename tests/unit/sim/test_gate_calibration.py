@@ -23,8 +23,12 @@ def record(episode_id: str, full, gate) -> str:
 
 def test_frames_come_from_train_records_only(tmp_path: Path) -> None:
     p = tmp_path / "episodes.jsonl"
-    p.write_text(record("train-s0-0000-0", [1.0, 80.0, None], [3.0, 90.0, 4.0]) + "\n"
-                 + record("train-s0-0000-1", [2.0], [None]) + "\n")  # gate not recorded: skipped
+    p.write_text(
+        record("train-s0-0000-0", [1.0, 80.0, None], [3.0, 90.0, 4.0])
+        + "\n"
+        + record("train-s0-0000-1", [2.0], [None])
+        + "\n"
+    )  # gate not recorded: skipped
     full, gate, episodes = gc.frames_from_records([str(p)])
     assert full.tolist() == [1.0, 80.0] and gate.tolist() == [3.0, 90.0] and episodes == 1
     p.write_text(record("val-s0-0000-0", [1.0], [3.0]) + "\n")
@@ -39,22 +43,34 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
     entries = []
     for name, img in (("astro", skimage.data.astronaut()), ("coffee", skimage.data.coffee())):
         for k, (x0, y0) in enumerate(((0, 0), (40, 30), (80, 10))):
-            view = cv2.resize(img[y0:y0 + 300, x0:x0 + 300], (160, 160))
+            view = cv2.resize(img[y0 : y0 + 300, x0 : x0 + 300], (160, 160))
             write_rgb(cache / f"{name}_{k}.png", view)
             entries.append({"path": f"{name}_{k}.png", "instance": name, "category": "tv"})
     cal = tmp_path / "xfeat_lighterglue_{kind}.json"
     for kind, tau in (("conf", 20.0), ("count", 10.0)):
-        Path(str(cal).format(kind=kind)).write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau}))
-    monkeypatch.setattr("agent.reid.identifier.calibration_path",
-                        lambda matcher, kind, early_stop=-1.0: Path(str(cal).format(kind=kind)))
+        Path(str(cal).format(kind=kind)).write_text(
+            json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau})
+        )
+    monkeypatch.setattr(
+        "agent.reid.identifier.calibration_path",
+        lambda matcher, kind, early_stop=-1.0: Path(str(cal).format(kind=kind)),
+    )
     records = tmp_path / "episodes.jsonl"
     # recorded frames: the gate score is about 1.5 x the full score near and above tau
     full = np.array([0.0, 1.0, 3.0, 6.0, 8.0, 20.0])
     records.write_text(record("train-s0-0000-0", full.tolist(), (1.5 * full + 1).tolist()) + "\n")
     out = tmp_path / "out"
     out.mkdir()
-    args = argparse.Namespace(matcher=["xfeat_lighterglue"], config="sim", threads=1, gate_negatives=100, seed=0,
-                              gate_records=[str(records)], gate_max_drop=0.01, no_write_agent=False)
+    args = argparse.Namespace(
+        matcher=["xfeat_lighterglue"],
+        config="sim",
+        threads=1,
+        gate_negatives=100,
+        seed=0,
+        gate_records=[str(records)],
+        gate_max_drop=0.01,
+        no_write_agent=False,
+    )
     result = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
     written = json.loads(Path(str(cal).format(kind="conf")).read_text())
     assert written["tau"] == 20.0 and written["gate_threshold"] == result["threshold"]
@@ -84,9 +100,14 @@ def test_gate_report_counts_what_each_stage_would_drop(tmp_path: Path) -> None:
 
     run = tmp_path / "run"
     run.mkdir()
-    trace = {"reid_score": [100.0, 80.0, 40.0, 5.0, None], "gate_score": [50.0, 15.0, 30.0, 2.0, 9.0],
-             "exit_score": [20.0, 9.0, 2.0, 0.5, 1.0]}
-    (run / "episodes.jsonl").write_text(json.dumps({"episode_id": "train-s0-0000-0", "modiin": {"trace": trace}}) + "\n")
+    trace = {
+        "reid_score": [100.0, 80.0, 40.0, 5.0, None],
+        "gate_score": [50.0, 15.0, 30.0, 2.0, 9.0],
+        "exit_score": [20.0, 9.0, 2.0, 0.5, 1.0],
+    }
+    (run / "episodes.jsonl").write_text(
+        json.dumps({"episode_id": "train-s0-0000-0", "modiin": {"trace": trace}}) + "\n"
+    )
     full, gate, exit_, episodes = shadow_frames(str(run))
     assert full.tolist() == [100.0, 80.0, 40.0, 5.0] and episodes == 1  # the frame without a score is left out
     lines = report(full, gate, exit_, tau=75.0, gate_thr=20.0, exit_thr=6.0, ratio=0.5)

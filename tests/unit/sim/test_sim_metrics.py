@@ -27,12 +27,28 @@ def test_success_boundary_is_inclusive() -> None:
 
 
 def test_episode_metrics_combines_them() -> None:
-    m = episode_metrics(called_stop=True, stop_xy_m=(2.05, 1.0), viewpoints_xy_m=VP, steps=40, max_steps=1000,
-                        path_length_m=6.0, shortest_path_m=4.5, stop_geodesic_m=0.05)
+    m = episode_metrics(
+        called_stop=True,
+        stop_xy_m=(2.05, 1.0),
+        viewpoints_xy_m=VP,
+        steps=40,
+        max_steps=1000,
+        path_length_m=6.0,
+        shortest_path_m=4.5,
+        stop_geodesic_m=0.05,
+    )
     assert m.success and m.spl == pytest.approx(0.75) and m.ne_m == 0.05 and not m.max_steps_reached
     assert m.stop_to_viewpoint_m == pytest.approx(0.05)
-    fail = episode_metrics(called_stop=False, stop_xy_m=(5.0, 5.0), viewpoints_xy_m=VP, steps=1000, max_steps=1000,
-                           path_length_m=30.0, shortest_path_m=4.5, stop_geodesic_m=3.2)
+    fail = episode_metrics(
+        called_stop=False,
+        stop_xy_m=(5.0, 5.0),
+        viewpoints_xy_m=VP,
+        steps=1000,
+        max_steps=1000,
+        path_length_m=30.0,
+        shortest_path_m=4.5,
+        stop_geodesic_m=3.2,
+    )
     assert not fail.success and fail.spl == 0.0 and fail.ne_m == 3.2 and fail.max_steps_reached
 
 
@@ -46,7 +62,14 @@ def test_aggregate_overall_and_per_category() -> None:
     s = aggregate(rows)
     assert s["episodes"] == 4 and s["sr"] == 0.5 and s["spl"] == pytest.approx(0.35) and s["max_st"] == 0.25
     assert s["ne"] == pytest.approx(1.0) and s["ne_unreachable"] == 1
-    assert s["per_category"]["chair"] == {"episodes": 2, "sr": 0.5, "spl": 0.4, "ne": 1.5, "ne_unreachable": 0, "max_st": 0.5}
+    assert s["per_category"]["chair"] == {
+        "episodes": 2,
+        "sr": 0.5,
+        "spl": 0.4,
+        "ne": 1.5,
+        "ne_unreachable": 0,
+        "max_st": 0.5,
+    }
     assert s["per_category"]["tv"]["sr"] == 0.5
     assert aggregate([])["episodes"] == 0
 
@@ -68,8 +91,17 @@ def test_bootstrap_over_homes() -> None:
 
 
 def test_aggregate_has_home_intervals_with_scene_seeds() -> None:
-    rows = [{"category": "chair", "success": i % 2 == 0, "spl": 0.5 * (i % 2 == 0), "ne": 0.1,
-             "max_steps_reached": False, "scene_seed": i // 2} for i in range(8)]
+    rows = [
+        {
+            "category": "chair",
+            "success": i % 2 == 0,
+            "spl": 0.5 * (i % 2 == 0),
+            "ne": 0.1,
+            "max_steps_reached": False,
+            "scene_seed": i // 2,
+        }
+        for i in range(8)
+    ]
     s = aggregate(rows)
     assert s["homes"] == 4 and s["sr"] == 0.5
     assert s["sr_ci95"] == [0.5, 0.5] and s["spl_ci95"] == [0.25, 0.25]  # every home has SR 0.5

@@ -93,8 +93,14 @@ def test_grid_agrees_with_collides(world: SimWorld) -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(x=st.floats(-3, 3), y=st.floats(-3, 3), yaw=st.floats(-math.pi, math.pi), ang=st.floats(-math.pi, math.pi),
-       hx=st.floats(0.05, 1.0), hy=st.floats(0.05, 1.0))
+@given(
+    x=st.floats(-3, 3),
+    y=st.floats(-3, 3),
+    yaw=st.floats(-math.pi, math.pi),
+    ang=st.floats(-math.pi, math.pi),
+    hx=st.floats(0.05, 1.0),
+    hy=st.floats(0.05, 1.0),
+)
 def test_rect_distance_is_rotation_invariant(x: float, y: float, yaw: float, ang: float, hx: float, hy: float) -> None:
     a = RectFootprint(0.0, 0.0, hx, hy, 0.0, 0.0, 1.0)
     b = RectFootprint(0.0, 0.0, hx, hy, ang, 0.0, 1.0)

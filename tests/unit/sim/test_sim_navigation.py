@@ -30,7 +30,9 @@ def test_geodesic_in_open_space_is_euclidean_within_a_few_percent() -> None:
 
 
 def test_geodesic_goes_around_a_wall() -> None:
-    index = FootprintIndex([RectFootprint(3.0, 2.0, 0.05, 2.0, 0.0, 0.0, 2.5)], (0.0, 0.0, 6.0, 6.0), robot_radius_m=0.17)
+    index = FootprintIndex(
+        [RectFootprint(3.0, 2.0, 0.05, 2.0, 0.0, 0.0, 2.5)], (0.0, 0.0, 6.0, 6.0), robot_radius_m=0.17
+    )
     grid = index.navigable_grid(0.05)
     field = geodesic_field(grid, np.array([[5.0, 1.0]]))
     d = geodesic_at(field, grid, 1.0, 1.0)
@@ -74,7 +76,9 @@ def test_lattice_plan_replays_exactly_and_reaches_a_viewpoint(world: SimWorld) -
     grid = world.navigable_grid(0.05)
     field = geodesic_field(grid, vp)
     start = Pose2D(0.5, 0.5, 2.0)
-    plan = plan_to_goal(world.move, start, ViewpointGoal(vp), lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0))
+    plan = plan_to_goal(
+        world.move, start, ViewpointGoal(vp), lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0)
+    )
     assert plan is not None and plan.actions[-1] == Action.STOP
     p = start
     for a, expected in zip(plan.actions[:-1], plan.poses_world):

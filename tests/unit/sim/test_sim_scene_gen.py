@@ -78,7 +78,10 @@ def test_a_style_makes_look_alike_but_different_textures() -> None:
     c = generate(Material("fabric", 3, 0.5, style=43)).astype(float)
     assert not np.array_equal(a, b)
     # same colours: the mean colour of a set is close, another style's is not
-    assert np.abs(a.mean(axis=(0, 1)) - b.mean(axis=(0, 1))).max() < np.abs(a.mean(axis=(0, 1)) - c.mean(axis=(0, 1))).max()
+    assert (
+        np.abs(a.mean(axis=(0, 1)) - b.mean(axis=(0, 1))).max()
+        < np.abs(a.mean(axis=(0, 1)) - c.mean(axis=(0, 1))).max()
+    )
 
 
 def test_dining_chairs_are_a_matching_set() -> None:
@@ -86,8 +89,12 @@ def test_dining_chairs_are_a_matching_set() -> None:
         home = generate_home(seed)
         chairs = [o for o in home.instances if o.category == "chair" and home.rooms[o.room_index].kind == "kitchen"]
         if len(chairs) >= 2:
-            styles = {home.materials[p.material].style for o in chairs for p in o.parts if p.material in home.materials
-                      and home.materials[p.material].family == "fabric"}
+            styles = {
+                home.materials[p.material].style
+                for o in chairs
+                for p in o.parts
+                if p.material in home.materials and home.materials[p.material].family == "fabric"
+            }
             assert len(styles) == 1 and styles != {-1}
             return
     # A failure, not a skip: a generator that stops making kitchens with two chairs would
