@@ -90,7 +90,7 @@ def test_phone_start_follow_stop_and_replay(browser, live_console: LiveServer, t
         last = row["n_steps"] - 1
         _scrub(page, last)
         _scrub(page, 1)
-        assert page.get_attribute("#replay-frame", "src").endswith(f"/replay/1/frame.jpg")
+        assert page.get_attribute("#replay-frame", "src").endswith("/replay/1/frame.jpg")
         page.locator("#replay-card").scroll_into_view_if_needed()
         page.screenshot(path=str(ARTIFACTS / "phone_replay.png"), full_page=True)
     finally:

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import io
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from tests.helpers.console_live import HOME_SEED, poll, sim_console
 from console.api import create_app
+from tests.helpers.console_live import HOME_SEED, poll, sim_console
 
 FINAL = ("finished", "stopped", "failed", "interrupted")
 

@@ -16,10 +16,10 @@ from agent.types import Pose2D
 from console import sim_adapter
 from console.sim_cache import WorldCache
 from console.sim_provider import SimProvider, SimProviderConfig
-from tests.helpers.console_live import HOME_SEED
 from sim import backend as sim_backend
 from sim.camera import SIM_CAMERA
 from sim.navigation import GRID_RESOLUTION_M, geodesic_field, instance_viewpoints, reachable_component
+from tests.helpers.console_live import HOME_SEED
 
 N_ROOMS = SimProviderConfig().n_rooms
 STEPS = 4  # the look-around's first turns: frames, re-ID scores and poses to compare, and a score

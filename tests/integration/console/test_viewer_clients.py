@@ -4,7 +4,7 @@ masked, and is cleared after use."""
 
 from __future__ import annotations
 
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 import pytest

@@ -5,9 +5,9 @@ Whole runs with the real simulator are in tests/integration/console."""
 from __future__ import annotations
 
 import threading
-import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pytest

@@ -5,8 +5,9 @@ goal images is in tests/integration/console/test_console_calibration_sim.py."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pytest

@@ -4,8 +4,8 @@ pictures per step, the viewer's replay, and the words a run is told in."""
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import pytest

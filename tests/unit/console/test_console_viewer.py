@@ -8,9 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from agent.types import Action, Pose2D
-from console.session import Outcome, StepRecord
 from console.scene_geometry import camera_rotation, rotation_to_wxyz
+from console.session import Outcome, StepRecord
 from console.viewer import Viewer, ViewerConfig
 from tests.helpers.console_testkit import ScriptedAgent, ScriptedBackend, poll, textured_rgb
 
