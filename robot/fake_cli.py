@@ -90,10 +90,12 @@ def run(args: argparse.Namespace) -> int:
         state_port=args.state_port,
         knobs=knobs,
     ).start()
+    assert fake.ports is not None  # bound by start()
+    obs_port, action_port, state_port = fake.ports
     try:
         print(
-            f"fake Stretch at {args.host}: observations {fake.ports[0]}, actions {fake.ports[1]}, "
-            f"state {fake.ports[2]}; start {world.start_world}. Ctrl-C to stop.",
+            f"fake Stretch at {args.host}: observations {obs_port}, actions {action_port}, "
+            f"state {state_port}; start {world.start_world}. Ctrl-C to stop.",
             flush=True,
         )
         goal_image = getattr(world, "goal_image_path", None)

@@ -191,7 +191,7 @@ class FakeStretch:
 
     @staticmethod
     def _port_of(sock: zmq.Socket) -> int:
-        endpoint = sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
         return int(endpoint.rsplit(":", 1)[1])
 
     # --- what tests read ---------------------------------------------------------------

@@ -270,8 +270,10 @@ class SimBackend:
 
     def current_render(self) -> Render:
         if self._render is None or self._render_pose != self.pose_world:
-            at_start = self._start_render is not None and self.pose_world == self.start_pose_world
-            self._render = self._start_render() if at_start else self.world.render(self.pose_world, self.camera)
+            if self._start_render is not None and self.pose_world == self.start_pose_world:
+                self._render = self._start_render()
+            else:
+                self._render = self.world.render(self.pose_world, self.camera)
             self._render_pose = self.pose_world
         return self._render
 

@@ -93,13 +93,13 @@ def _generate(
         by_cat.setdefault(inst.category, []).append(inst.object_id)
     cats = sorted(by_cat)
     rng.shuffle(cats)
-    for c in cats:
-        rng.shuffle(by_cat[c])
+    for cat in cats:
+        rng.shuffle(by_cat[cat])
     order: list[int] = []
     while any(by_cat.values()):  # round-robin over categories
-        for c in cats:
-            if by_cat[c]:
-                order.append(by_cat[c].pop())
+        for cat in cats:
+            if by_cat[cat]:
+                order.append(by_cat[cat].pop())
     # starts keep START_CLEARANCE_M beyond the robot's radius from everything (not wedged
     # against a wall or a bed edge), as a robot would be parked
     r = int(round(cfg.start_clearance_m / grid.resolution_m))

@@ -151,11 +151,11 @@ def _doors(rng: np.random.Generator, plans: list[RoomPlan]) -> list[Door]:
     if public_spare and rng.uniform() < 0.5:
         chosen.append(public_spare[0])
     doors = []
-    for _, i, j, (axis, coord, s, e) in chosen:
+    for _, i, j, (axis, coord, s, end) in chosen:
         both_public = plans[i].kind in PUBLIC_KINDS and plans[j].kind in PUBLIC_KINDS
         width = rng.uniform(1.2, 2.0) if both_public and rng.uniform() < 0.4 else rng.uniform(0.85, 1.0)
-        width = min(width, e - s - 0.5)
-        start = _snap(rng.uniform(s + 0.25, e - 0.25 - width))
+        width = min(width, end - s - 0.5)
+        start = _snap(rng.uniform(s + 0.25, end - 0.25 - width))
         doors.append(Door(i, j, axis, coord, start, _snap(start + width)))
     return doors
 

@@ -182,15 +182,12 @@ class FootprintIndex:
         """A lower bound on the distance to the nearest footprint (0 outside the bounds)."""
         if self._lower is None:
             self._build_fast_path()
+        lower = self._lower
+        assert lower is not None  # built just above
         i = int((y_m - self.bounds_xy_m[1]) / self._fast_res)
         j = int((x_m - self.bounds_xy_m[0]) / self._fast_res)
-        if (
-            0 <= i < len(self._lower)
-            and 0 <= j < len(self._lower[0])
-            and y_m >= self.bounds_xy_m[1]
-            and x_m >= self.bounds_xy_m[0]
-        ):
-            return self._lower[i][j]
+        if 0 <= i < len(lower) and 0 <= j < len(lower[0]) and y_m >= self.bounds_xy_m[1] and x_m >= self.bounds_xy_m[0]:
+            return lower[i][j]
         return 0.0
 
     def clearance_m(self, x_m: float, y_m: float) -> float:

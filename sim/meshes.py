@@ -129,8 +129,8 @@ def box(
     corners: list = []
     normals: list = []
     uvs: list = []
-    for k, (nrm, o, ua, va, ul, vl) in enumerate(faces):
-        o, ua, va = np.array(o, float), np.array(ua, float), np.array(va, float)
+    for k, (nrm, o_xyz, u_xyz, v_xyz, ul, vl) in enumerate(faces):
+        o, ua, va = np.array(o_xyz, float), np.array(u_xyz, float), np.array(v_xyz, float)
         if uv_mode == "fit":
             # the +y face shows the whole image upright; the others a single texel
             corners.append(np.stack([o, o + ua * ul, o + ua * ul + va * vl, o + va * vl]))
@@ -222,7 +222,10 @@ def ellipsoid(
     mean_r = (rx + ry + rz) / 3.0
     mu = max(1, int(round(tile_m / (2 * math.pi * mean_r / segments))))
     mv = max(1, int(round(tile_m / (math.pi * mean_r / rings))))
-    verts, norms, uvs, tri = [], [], [], []
+    verts: list[np.ndarray] = []
+    norms: list[np.ndarray] = []
+    uvs: list[list[float]] = []
+    tri: list[int] = []
     for i in range(rings):
         for j in range(segments):
             cells = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)]  # counter-clockwise seen from outside

@@ -10,7 +10,7 @@ from collections.abc import Iterable, Sequence
 import cv2
 import numpy as np
 
-from sim.geometry import FootprintIndex, RectFootprint
+from sim.geometry import Footprint, FootprintIndex, RectFootprint
 from sim.home import HomeSpec
 
 _ROOM_COLOURS = {
@@ -47,6 +47,12 @@ class TopDown:
     def poly(self, xy: np.ndarray) -> np.ndarray:
         return np.array([self.px(x, y) for x, y in xy], np.int32).reshape(-1, 1, 2)
 
+    def _fill(self, fp: Footprint, colour: tuple[int, int, int]) -> None:
+        if isinstance(fp, RectFootprint):
+            cv2.fillPoly(self.img, [self.poly(fp.corners_xy())], colour)
+        else:
+            cv2.circle(self.img, self.px(fp.cx_m, fp.cy_m), max(1, int(fp.r_m * self.s)), colour, -1)
+
     def draw_home(self, navigable: bool = True, labels: bool = True) -> TopDown:
         home = self.home
         for room in home.rooms:
@@ -61,21 +67,16 @@ class TopDown:
         for obj in home.objects:  # floor coverings first, so furniture stays on top
             for part in obj.parts:
                 if not part.solid:
-                    cv2.fillPoly(self.img, [self.poly(part.footprint().corners_xy())], (215, 205, 190))
+                    self._fill(part.footprint(), (215, 205, 190))
         for obj in home.objects:
             col = _CATEGORY_COLOURS.get(obj.category, (150, 150, 150)) if obj.is_instance else (185, 185, 185)
             for part in obj.parts:
-                fp = part.footprint()
-                if not part.solid:
-                    continue
-                if isinstance(fp, RectFootprint):
-                    cv2.fillPoly(self.img, [self.poly(fp.corners_xy())], col)
-                else:
-                    cv2.circle(self.img, self.px(fp.cx_m, fp.cy_m), max(1, int(fp.r_m * self.s)), col, -1)
+                if part.solid:
+                    self._fill(part.footprint(), col)
         for w in home.walls:
             if w.center_xyz_m[2] - w.size_xyz_m[2] / 2 > 0.5:
                 continue  # lintels over doorways
-            cv2.fillPoly(self.img, [self.poly(w.footprint().corners_xy())], (60, 60, 60))
+            self._fill(w.footprint(), (60, 60, 60))
         if labels:
             for room in home.rooms:
                 x0, y0, x1, y1 = room.rect_m

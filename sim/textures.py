@@ -358,7 +358,7 @@ def _natural(name: str) -> np.ndarray:
 
 
 def _picture(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
-    img = _natural(m.image).astype(np.float32)
+    img: np.ndarray = _natural(m.image).astype(np.float32)  # float64 after the tint and scale below
     h, w = img.shape[:2]
     cw = int(w * rng.uniform(0.55, 1.0))
     ch = int(cw * m.aspect)

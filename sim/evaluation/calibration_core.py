@@ -34,7 +34,7 @@ class PairSet:
     n_negatives_total: int
 
 
-def make_pairs(instance_of_image: Sequence[int], max_negatives: int, seed: int = 0) -> PairSet:
+def make_pairs(instance_of_image: Sequence[int | str], max_negatives: int, seed: int = 0) -> PairSet:
     inst = np.asarray(instance_of_image)
     n = len(inst)
     i, j = np.triu_indices(n, k=1)

@@ -32,6 +32,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -249,7 +250,10 @@ def sample_pairs(
 
     cfg = dataclasses.replace(load_agent_config(config).reid, num_threads=threads)
     matcher = make_matcher(cfg)
-    feats, inst, share, dist = [], [], [], []
+    feats: list[Any] = []  # the matcher's Features
+    inst: list[str] = []
+    share: list[float] = []
+    dist: list[float] = []
     for k in range(200):  # homes; far more than any sample needs
         if len(set(inst)) >= instances:
             break
@@ -461,7 +465,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error("nothing to analyse: give --records and/or --pairs-instances")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sections, named, panels, notes, report = [], {}, {}, [], {"tau": tau, "records": args.records}
+    sections: list[str] = []
+    named: dict[str, Any] = {}
+    panels: dict[str, Any] = {}
+    notes: list[str] = []
+    report: dict[str, Any] = {"tau": tau, "records": args.records}
     if args.records:
         ev = frames_evidence(args.records, tau, calibrated_gate, thr)
         report["frames"] = {"episodes": len(set(ev.unit)), "frames": len(ev), "censored": int(ev.censored.sum())}

@@ -102,11 +102,11 @@ def conclusion(name: str, rows: list[BinRow], tau: float, min_positives: int, wi
             + ", ".join(f"{r.label} {_r(r.neg_at_tau, True)} of {r.negatives}" for r in neg)
             + "."
         )
-    fs = [r for r in rows if r.max_f is not None]
+    fs = [(r.label, r.max_f) for r in rows if r.max_f is not None]
     if fs:
         out.append(
             f"{name}: max-F thresholds "
-            + ", ".join(f"{r.label} {'<=' if r.max_f.at_floor else ''}{r.max_f.threshold:.0f}" for r in fs)
+            + ", ".join(f"{label} {'<=' if m.at_floor else ''}{m.threshold:.0f}" for label, m in fs)
             + "."
         )
     return out

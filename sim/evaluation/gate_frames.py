@@ -30,8 +30,12 @@ import multiprocessing as mp
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from agent.reid import Features
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +48,7 @@ class _RecordingMatcher:
     def __init__(self, inner) -> None:
         self.inner = inner
         self.name = inner.name
-        self.last = None
+        self.last: Features | None = None  # what extract() returned last
 
     def extract(self, rgb, max_keypoints):
         self.last = self.inner.extract(rgb, max_keypoints)
@@ -73,6 +77,7 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
     class Sink:
         def before_apply(self, s) -> None:
             f = rec.last
+            assert f is not None  # the agent extracted this step's frame
             frames["kp"].append(_as_numpy(f.extra.get("kp_resized", f.keypoints_xy)).astype(np.float32))
             frames["desc"].append(_as_numpy(f.descriptors).astype(np.float16))
             frames["full"].append(float(s.record.reid_score))
@@ -83,7 +88,8 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
             pass
 
     run_loop(backend, agent, max_steps, sinks=(Sink(),), should_stop=lambda: backend.done)
-    goal = agent.reid.goal
+    assert agent.reid is not None and agent.reid.goal is not None and rec.last is not None
+    goal, last = agent.reid.goal, rec.last
     backend.close()
     n = len(frames["full"])
     k = max((len(x) for x in frames["kp"]), default=0)
@@ -100,7 +106,7 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
         kp=kp,
         desc=desc,
         n_kp=n_kp,
-        size_wh=np.asarray(rec.last.extra.get("size_resized_wh", rec.last.image_size_wh), np.float32),
+        size_wh=np.asarray(last.extra.get("size_resized_wh", last.image_size_wh), np.float32),
         full=np.asarray(frames["full"], np.float32),
         searching=np.asarray(frames["searching"], bool),
         goal_px=np.asarray(frames["goal_px"], np.int32),

@@ -198,7 +198,7 @@ def _clean_args(args: argparse.Namespace) -> argparse.Namespace:
 
 def run_scene(
     episodes: list[Episode],
-    goal_images: list[np.ndarray | str | Path],
+    goal_images: Sequence[np.ndarray | str | Path],
     agent: str,
     args: argparse.Namespace,
     fail_fast: bool = False,
@@ -341,7 +341,7 @@ def run_evaluation(
     others = {r.get("agent") for r in done.values()} - {agent}
     if others:
         raise ValueError(
-            f"{out / RECORDS} holds records of agent(s) {sorted(others)}; use another --out or --overwrite"
+            f"{out / RECORDS} holds records of agent(s) {sorted(map(str, others))}; use another --out or --overwrite"
         )
     todo = [e for e in selected if e.episode_id not in done]
     groups: dict[int, list[str]] = {}
