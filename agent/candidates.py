@@ -4,11 +4,10 @@ A candidate is a cluster of goal points (``agent.localisation``) together with e
 that added points to it: the step, its re-ID score, the distance from the robot to what it
 saw and the number of points (``localisation.View``). Its state follows from that evidence:
 
-* ``confirmed``: some view scored at or above tau (the paper's detection), and, when
-  verification is on, from within ``verify_range_m`` (a re-match at a distance where a match
-  is informative; see ``PolicyConfig``);
-* ``potential``: points, but no confirming view: only views below tau (when the policy
-  localises frames above a lower threshold, ``potential_tau_ratio``) or detections from afar;
+* ``confirmed``: some view scored at or above tau (the paper's detection), or a look from the
+  verify ring confirmed it (``PolicyConfig.verify_ring_tau_ratio``);
+* ``potential``: points, but no confirming view: only views below tau (the policy localises
+  frames above a lower threshold, ``potential_tau_ratio``);
 * ``rejected``: given up by the policy (verification failed, unreachable, no progress); its
   cells are blacklisted on the map (``GridMap.blacklist_cells``) and it is kept here only
   for the record.
@@ -55,13 +54,12 @@ class GoalCandidate:
         return max((v.score for v in self.views if v.distance_m <= distance_m), default=0.0)
 
 
-def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float, verify_range_m: float | None,
+def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float,
              confirmed_steps: frozenset[int] = frozenset()) -> GoalCandidate:
-    """The candidate's state from its views. ``verify_range_m`` None: any detection confirms.
-    ``confirmed_steps``: views that confirm whatever their score (looks from the verify ring)."""
+    """The candidate's state from its views: a detection (score >= tau) confirms it, and so do
+    the views in ``confirmed_steps`` whatever their score (looks from the verify ring)."""
     views = tuple(v for v in (localiser.view(f) for f in cluster.frames) if v is not None)
-    confirming = [v for v in views if v.step in confirmed_steps
-                  or v.score >= tau and (verify_range_m is None or v.distance_m <= verify_range_m)]
+    confirming = [v for v in views if v.step in confirmed_steps or v.score >= tau]
     state = CandidateState.CONFIRMED if confirming else CandidateState.POTENTIAL
     return GoalCandidate(cluster, state, views)
 
@@ -71,6 +69,7 @@ class CandidateMemory:
     and turns clusters into ``CandidateInfo``."""
 
     def __init__(self) -> None:
+        self.rejections = 0  # rejections so far (a candidate rejected twice counts twice)
         self._rejected: dict[int, CandidateInfo] = {}
         # id -> (cluster, its cells' centres in metres): map cells move when the map grows
         self._clusters: dict[int, tuple[Candidate, np.ndarray]] = {}
@@ -80,6 +79,7 @@ class CandidateMemory:
         """Record a rejection (``why``: the policy's reason). ``cells_xy_m``: the centres of its
         cells (kept with the cluster for ``rejected_cluster``). Rejecting it again keeps the best
         evidence seen and the latest reason."""
+        self.rejections += 1
         cl = cand.cluster if isinstance(cand, GoalCandidate) else cand
         n_views = len(cand.views) if isinstance(cand, GoalCandidate) else cl.n_frames
         best = cand.best_score if isinstance(cand, GoalCandidate) else cl.max_score

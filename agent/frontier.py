@@ -32,12 +32,6 @@ class FrontierConfig:
     blacklist_radius_m: float = 0.5
     switch_margin_m: float = 1.0  # keep the current target unless another is this much nearer
     no_progress_steps: int = 25  # no decrease of the geodesic distance in this many steps -> give up
-    # Information gain: a frontier's cost is its geodesic distance less gain_weight_m times the
-    # share of unexplored cells within gain_window_m of it (rooms not yet seen lie behind
-    # frontiers with much unexplored space; a sliver behind furniture has little). 0: nearest
-    # frontier (Yamauchi 1997).
-    gain_weight_m: float = 0.0
-    gain_window_m: float = 1.5
 
 
 def frontier_mask(grid: GridMap, min_cluster_cells: int = 5) -> np.ndarray:
@@ -109,7 +103,7 @@ class FrontierExplorer:
             for ij in cells[np.isfinite(d)]:
                 grid.layers.frontier_blacklist[ij[0], ij[1]] = True
             return None
-        k = int(np.argmin(np.where(ok, self._cost(grid, cells, d), np.inf)))
+        k = int(np.argmin(np.where(ok, d, np.inf)))
         ij = (int(cells[k, 0]), int(cells[k, 1]))
         xy = grid.ij_to_xy(np.array([ij]))[0]
         self.target_xy_m = (float(xy[0]), float(xy[1]))
@@ -144,23 +138,11 @@ class FrontierExplorer:
         # hysteresis: switch only if some other frontier is clearly nearer
         cells = np.argwhere(frontier)
         dd = field.at(cells)
-        dd = np.where(dd > cfg.reached_radius_m, self._cost(grid, cells, dd), np.inf)
-        if len(dd) and float(dd.min()) < float(self._cost(grid, np.array([ij_t]), np.array([d]))[0]) - cfg.switch_margin_m:
+        dd = np.where(dd > cfg.reached_radius_m, dd, np.inf)
+        if len(dd) and float(dd.min()) < d - cfg.switch_margin_m:
             self.reset()
             return None
         return FrontierChoice(self.target_xy_m, ij_t, d, "kept")
-
-
-    def _cost(self, grid: GridMap, cells: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """Geodesic distance less the information-gain bonus (see ``FrontierConfig``)."""
-        cfg = self.config
-        if cfg.gain_weight_m <= 0.0 or len(cells) == 0:
-            return d
-        r = max(1, int(round(cfg.gain_window_m / grid.resolution_m)))
-        unexplored = (~grid.layers.explored).astype(np.float32)
-        share = cv2.boxFilter(unexplored, -1, (2 * r + 1, 2 * r + 1), normalize=True, borderType=cv2.BORDER_CONSTANT)
-        ij = np.clip(cells, 0, np.array(grid.shape) - 1)
-        return d - cfg.gain_weight_m * share[ij[:, 0], ij[:, 1]]
 
 
 def _near(mask: np.ndarray, ij: tuple[int, int], r: int) -> bool:

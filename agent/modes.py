@@ -2,11 +2,14 @@
 
 The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
 
-    LOOK_AROUND --(no candidate, start turns done)--> EXPLORE <--(candidate rejected)--+
-        |                                               |                              |
-        +-----------(a goal candidate)-------------> APPROACH --(in the stop region)--> VERIFY
-                                                        |                              |
-                                                     STOPPED <------(confirmed)--------+
+    LOOK_AROUND --(start turns done)--> EXPLORE <-----------(candidate rejected)-----------+
+                                          |                                               |
+              +--(confirmed candidate)----+----(potential candidate)--> VERIFY -----------+
+              v                                                           |
+          APPROACH <--------------------(confirmed from the verify ring)--+
+              |
+          STOPPED (in the stop region, facing the candidate)
+
     EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
        |                                                |
        |                       (policy.last_resort, a rejected candidate left)
@@ -16,7 +19,8 @@ The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
 
 Each mode's memory is a small frozen dataclass; the agent replaces it (``dataclasses.replace``)
 rather than mutating counters, and every step ends in one frozen ``Decision`` that goes into
-the ``AgentRecord`` (mode, reason, plan, target, candidate, planner error).
+the ``AgentRecord`` (mode, event and context, the reason written from them, plan, target,
+candidate, planner error).
 """
 
 from __future__ import annotations
@@ -25,6 +29,10 @@ import enum
 import math
 from dataclasses import dataclass, field, replace
 
+from collections.abc import Mapping
+from typing import Any
+
+from agent.events import Context, Event, Note, event_facts, sentence
 from agent.localisation import Candidate
 from agent.planner import Plan
 from agent.types import Action
@@ -34,7 +42,7 @@ class Mode(str, enum.Enum):
     LOOK_AROUND = "look_around"  # the initial full turn
     EXPLORE = "explore"  # heading for a frontier
     APPROACH = "approach"  # heading for a goal candidate (or turning to face it)
-    VERIFY = "verify"  # confirming a candidate: scanning at the stop point, or approaching and looking at it
+    VERIFY = "verify"  # confirming a potential candidate: approaching its verify ring and looking at it
     RESCAN = "rescan"  # no reachable frontier: forgive and look around again
     STOPPED = "stopped"  # STOP at a (confirmed) candidate
     EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
@@ -44,26 +52,36 @@ class Mode(str, enum.Enum):
         return self.value
 
 
-# how the decision that takes the second look when exhausted begins its reason
-# (``policy.exhausted_recheck_frames``; the evaluation records the step)
-SECOND_LOOK = "exhausted, second look with the full matcher"
-
-
 @dataclass(frozen=True, slots=True, eq=False)
 class Decision:
     """What the policy decided this step and why (immutable; goes into the ``AgentRecord``).
 
-    target_kind: ``"goal"`` (a candidate), ``"frontier"`` or None; candidate: the goal
-    candidate the decision is about (None in EXPLORE/RESCAN/EXHAUSTED/LOOK_AROUND);
-    planner_error: ``"<reason>: <message>"`` of a failed plan this step, if any."""
+    event and facts: what the robot does, with its numbers; context: the notes it was decided in
+    (``agent.events``); ``reason`` is the sentence written from them. target_kind: ``"goal"``
+    (a candidate), ``"frontier"`` or None; candidate: the goal candidate the decision is about
+    (None in EXPLORE/RESCAN/EXHAUSTED/LOOK_AROUND); planner_error: ``"<reason>: <message>"`` of a
+    failed plan this step, if any."""
 
     action: Action
     mode: Mode
-    reason: str
+    event: Event
+    facts: Mapping[str, Any] = field(default_factory=event_facts)
+    context: tuple[Note, ...] = ()
     plan: Plan | None = None
     target_kind: str | None = None
     candidate: Candidate | None = None
     planner_error: str | None = None
+
+    @property
+    def reason(self) -> str:
+        return sentence(self.event, self.facts, self.context)
+
+    def within(self, context: Context, **facts: Any) -> Decision:
+        """This decision, taken in ``context`` (with its numbers)."""
+        return replace(self, context=(Note.of(context, **facts), *self.context))
+
+    def has(self, context: Context) -> bool:
+        return any(n.context == context for n in self.context)
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,16 +109,10 @@ class ApproachState:
 
 @dataclass(frozen=True, slots=True)
 class VerifyState:
-    """Verifying a candidate. ``close_range``: scanning at the stop point, ``scan_index`` into
-    ``SCAN_TURNS``. ``approach``: looking at a potential candidate from the verify ring,
-    ``views`` steps so far (``candidate_id`` names it)."""
+    """Looking at a potential candidate (``candidate_id``) from the verify ring: ``views`` looks so far."""
 
-    scan_index: int = 0
     candidate_id: int | None = None
     views: int = 0
-
-
-SCAN_TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.TURN_LEFT)
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,6 +134,8 @@ class MotionState:
     # a side-step out of a to-and-fro run: (global cell i, cell j, heading bin) to step forward
     # on from that cell (``motion.detour``); None: no detour under way
     detour: tuple[int, int, int] | None = None
+    # this step's action is part of a side-step (set when steering, cleared at each step's start)
+    side_step: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,14 +148,7 @@ class PolicyState:
     verify: VerifyState | None = None  # None: not verifying
     rescan: RescanState = field(default_factory=RescanState)
     motion: MotionState = field(default_factory=MotionState)
-    confirmed_xy_m: tuple[tuple[float, float], ...] = ()  # centres of close-range detections
     ring_confirmed: frozenset[int] = frozenset()  # steps whose look from the verify ring confirmed a candidate
-    # (candidate id, x, y) of stop spots from which the candidate was hidden (``stop_needs_view``)
-    hidden_spots: tuple[tuple[int, float, float], ...] = ()
-    # (candidate id, x, y) of what hid it there (points of the depth frame): blocks its line of sight
-    occluders: tuple[tuple[int, float, float], ...] = ()
-    # candidates for which no spot in view could be reached: they are stopped at where the robot can
-    view_given_up: frozenset[int] = frozenset()
     last_resort: "LastResortState" = field(default_factory=lambda: LastResortState())
     rechecked: bool = False  # the second look at the best frames when exhausted was taken
 

@@ -1,47 +1,36 @@
 """The Mod-IIN agent (Krantz et al., ICCV 2023): frontier exploration, keypoint re-identification,
-goal localisation by projected matches, fast-marching navigation (DESIGN section 2).
+goal localisation by projected matches, fast-marching navigation (docs/architecture.md section 2).
 
 Per step: map the depth frame; re-identify (score the frame against the goal image); on a
 detection, lift the matched goal keypoints into 3D goal points; then decide, as an explicit
 state machine (``agent.modes``: look around, explore, approach, verify, rescan, stop), one
 frozen ``Decision`` that goes into the step's ``AgentRecord``.
 
-Beyond the paper (DESIGN section 2, end), each a switch in ``PolicyConfig`` (or
-``FrontierConfig``), all off by default so that each can be measured alone:
+Beyond the paper (docs/architecture.md section 2, end; the evidence for each is in
+docs/experiments/), each with its setting in ``PolicyConfig``:
 
-* a full look-around at the start (``look_around_turns``; on in both deployments);
-* ``verify`` with ``verify_by="close_range"``: a candidate is stopped at only after a
-  detection from within ``verify_range_m`` of it; at the stop point without one, the agent
-  scans left and right and rejects (blacklists) the candidate when nothing confirms it;
-* ``verify`` with ``verify_by="approach"``: a candidate without such a detection is
-  *potential*; the agent goes to a ring around it (outside the distance at which the level
-  camera loses the candidate's top), faces it and looks ``verify_views`` times; a detection
-  confirms it, none rejects it (IEVE's explore-verify-exploit, Lei et al. CVPR 2024);
-* candidate memory with potential evidence (``potential_tau_ratio`` < 1): frames scoring
-  below tau but above the ratio add goal points too; the candidate they form is potential
-  and is verified by approach (``agent.candidates``; every candidate, rejected ones
-  included, is in the ``AgentRecord``);
+* a full look-around at the start (``look_around_turns``);
+* candidate memory with potential evidence (``potential_tau_ratio``): frames scoring below tau
+  but above the ratio add goal points too; the candidate they form is potential and is
+  verified by approach from a ring around it (``agent.approach``; IEVE's explore-verify-exploit,
+  Lei et al. CVPR 2024), where a look at ``verify_ring_tau_ratio`` x tau confirms it;
 * where to stop (``stop_rule="core"``): measured from the candidate's core cells rather than
-  its nearest (possibly stray) one, and only where the map shows a line of sight to it; the
-  core weighs each cell by the points in it (``stop_core_by="points"``);
-* the view check at the stop (``stop_needs_view``): facing the candidate, its core points that
-  fall in the frame are looked up in the depth image; when something else hides them all (a
-  wall between the robot and an object against its other side) the spot is struck off, what
-  hid them blocks the candidate's line of sight, and the approach goes on;
-* exploration by information gain (``frontier.gain_weight_m``);
+  its nearest (possibly stray) one, and only where the map shows a line of sight to it;
 * the last resort (``last_resort``): when nothing is left to explore, head for the rejected
-  candidate with the best evidence and stop there (LAST_RESORT), instead of stopping in place;
-* the deadline over a weaker candidate (``deadline_over_weaker``): at the deadline, the last
-  resort also comes before verifying a potential candidate whose evidence is below the best
-  rejected one's;
+  candidate with the best evidence and stop there, instead of stopping in place; also at the
+  deadline (``last_resort_at_deadline``), and then before verifying a weaker potential candidate
+  (``deadline_over_weaker``);
+* the side-step out of turning to and fro (``detour_after_turns``);
 * the second look (``exhausted_recheck_frames``): when nothing is left to explore and there is no
   candidate at all, the searching frames with the most descriptor pairs with the goal (kept in
   ``agent.shortlist``) are scored again with the full matcher and their matches localised as
   potential evidence, verified by approach like any other.
 
-Going to a candidate, verifying it, giving it up and the last resort live in
-``agent.approach`` (mixed in). Rejected and unreachable candidates are blacklisted on the map (``GridMap.blacklist_cells``),
-so their points and later points there are ignored and exploration resumes.
+The candidate side (approach, verify, reject, last resort, steering) is a component,
+``agent.approach.CandidateNavigator``: it takes the step's scene and the policy state and returns
+the decision and the next state. Rejected and unreachable candidates are blacklisted on the map
+(``GridMap.blacklist_cells``), so their points and later points there are ignored and
+exploration resumes.
 
 Oracle ablations are injected callables (the agent never imports sim/):
 ``oracle_reid(obs) -> bool`` (goal visible), ``oracle_ego_mask(obs) -> (H, W) bool``
@@ -58,18 +47,19 @@ from typing import Callable
 
 import numpy as np
 
+from agent.approach import CandidateNavigator, Scene
 from agent.background import Pending
 from agent.candidates import CandidateMemory, CandidateState, GoalCandidate, evaluate
 from agent.config import AgentConfig
+from agent.events import Context, Event, event_facts
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
-from agent.motion import after_action, move_key, safe_action
-from agent.approach import CandidateNavigation
-from agent.modes import SECOND_LOOK, Decision, Mode, PolicyState, RescanState
-from agent.planner import DistanceField, FMMPlanner, Plan, PlanError
-from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
+from agent.modes import Decision, Mode, PolicyState, RescanState
+from agent.motion import after_action, move_key
+from agent.planner import FMMPlanner, Plan, PlanError
 from agent.reid.base import Matcher
+from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
 from agent.shortlist import FrameShortlist
 from agent.types import Action, AgentRecord, Observation, Pose2D
@@ -83,7 +73,7 @@ _EMPTY2 = np.zeros((0, 2), np.float32)
 _EMPTY3 = np.zeros((0, 3), np.float32)
 
 
-class ModIINAgent(CandidateNavigation):
+class ModIINAgent:
     """Implements ``agent.types.Agent``."""
 
     def __init__(
@@ -110,11 +100,11 @@ class ModIINAgent(CandidateNavigation):
         self.reid = ReIdentifier(config.reid, matcher, min_score_ratio=floor) if needs_matcher else None
         self.segmenter = GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
         self.planner = FMMPlanner(config.planner)
+        self.nav = CandidateNavigator(pc, self.planner, self.tau)
         self._record: AgentRecord | None = None
         self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
         self._goal_mask: Pending | None = None
-        self._side_step = False  # set by _safe: this step's action is part of a side-step
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -195,35 +185,23 @@ class ModIINAgent(CandidateNavigation):
 
         # 3. localisation
         t = time.perf_counter()
-        added = _EMPTY3
         potential = (not detected and pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0
                      and self.tau is not None and score >= pc.potential_tau_ratio * self.tau)
-        if potential:
+        if potential or detected:
             self._localise(obs, result, score)
-        elif searching and not detected and result is not None and pc.reid_source == "matcher":
+        elif searching and result is not None and pc.reid_source == "matcher":
             # kept for a second look should exploration end with nothing (``agent.shortlist``)
             self.shortlist.offer(obs, result.gate_score if result.gate_score is not None else score)
-        if detected:
-            added = self._localise(obs, result, score)
-            if len(added):
-                c = added[:, :2].mean(axis=0)
-                if math.hypot(c[0] - obs.pose.x_m, c[1] - obs.pose.y_m) <= pc.verify_range_m:
-                    self._set(confirmed_xy_m=self._state.confirmed_xy_m + ((float(c[0]), float(c[1])),))
         candidates = self._evaluate(self.localiser.candidates(self.grid, self.tau))
         timings["localisation"] = _ms(t)
 
         # 4. decision and planning
         t = time.perf_counter()
-        self._candidates_changed = False
-        broke = 0 < pc.oscillation_turns <= self._state.motion.alternating_turns
-        if broke:
-            self._break_oscillation()
-        self._side_step = False
+        rejections, rechecked = self.memory.rejections, self._state.rechecked
+        self._set(motion=replace(self._state.motion, side_step=False))
         decision = self._decide(obs, candidates)
-        if broke:
-            decision = replace(decision, reason=f"turn-in-place livelock broken; {decision.reason}")
-        if self._side_step:
-            decision = replace(decision, reason=f"side-step out of turning to and fro; {decision.reason}")
+        if self._state.motion.side_step:
+            decision = decision.within(Context.SIDE_STEP)
         timings["planning"] = _ms(t)
 
         action = decision.action
@@ -236,14 +214,17 @@ class ModIINAgent(CandidateNavigation):
         timings["total"] = _ms(t_start)  # includes the record's map snapshot
         plan, cand = decision.plan, decision.candidate
         robot_xy = (obs.pose.x_m, obs.pose.y_m)
-        # the candidates as they stand after the decision (a rejection changes them)
-        live = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if self._candidates_changed else candidates
+        # the candidates as they stand after the decision (a rejection or the second look changes them)
+        changed = self.memory.rejections != rejections or self._state.rechecked != rechecked
+        live = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if changed else candidates
         self._record = AgentRecord(
             step=obs.step,
             action=action,
             pose=obs.pose,
             mode=decision.mode.value,
             reason=decision.reason,
+            event=decision.event.value,
+            context=tuple(n.context.value for n in decision.context),
             reid_score=score,
             reid_tau=self.tau,
             reid_full_matcher=result.full_matcher if result is not None else None,
@@ -269,24 +250,8 @@ class ModIINAgent(CandidateNavigation):
     def _set(self, **changes) -> None:
         self._state = replace(self._state, **changes)
 
-    def _break_oscillation(self) -> None:
-        """Turned to and fro ``oscillation_turns`` times (config.py says why): give up the frontier
-        (as after no progress) and spend one rescan's forgiving."""
-        if self._state.mode == Mode.EXPLORE:
-            self.explorer.blacklist_target(self.grid, "to and fro")
-        r = self._state.rescan
-        self._set(motion=replace(self._state.motion, alternating_turns=0), rescan=replace(r, rescans_left=max(0, r.rescans_left - 1)))
-        log.info("turned to and fro on the spot: frontier given up, %d rescans left", self._state.rescan.rescans_left)
-
-    def _safe(self, plan: Plan, pose: Pose2D, field: DistanceField) -> Action:
-        before = self._state.motion.detour
-        action, motion = safe_action(plan, pose, field, self.grid, self.planner, self._state.motion,
-                                     self.config.policy.detour_after_turns)
-        self._set(motion=motion)
-        # a side-step under way, or its last action (the step forward from the cell it began on)
-        self._side_step = motion.detour is not None or (
-            before is not None and action == Action.MOVE_FORWARD and before[:2] == move_key(self.grid, pose)[:2])
-        return action
+    def _scene(self, obs: Observation) -> Scene:
+        return Scene(obs, self.grid, self.memory)
 
     # --- localisation and candidates ---------------------------------------------------
 
@@ -304,19 +269,17 @@ class ModIINAgent(CandidateNavigation):
 
     def _evaluate(self, clusters: list[Candidate]) -> list[GoalCandidate]:
         """Clusters -> candidates with their evidence and state (``agent.candidates``)."""
-        pc = self.config.policy
         tau = self.tau if self.tau is not None else 0.5  # the oracle's score is 1 or 0
-        by_approach = pc.verify and pc.verify_by == "approach"
-        return [evaluate(c, self.localiser, tau, pc.verify_range_m if by_approach else None, self._state.ring_confirmed)
-                for c in clusters]
+        return [evaluate(c, self.localiser, tau, self._state.ring_confirmed) for c in clusters]
 
-    def _pick(self, candidates: list[GoalCandidate]) -> GoalCandidate | None:
-        """Confirmed candidates first; among them (or among the potential ones when none is
-        confirmed) the largest cluster (the paper), or the best-scoring one."""
+    @staticmethod
+    def _pick(candidates: list[GoalCandidate]) -> GoalCandidate | None:
+        """Confirmed candidates first, the largest cluster among them (the paper); when none is
+        confirmed, the potential one with the best score."""
         if not candidates:
             return None
         pool = [c for c in candidates if c.state == CandidateState.CONFIRMED] or candidates
-        if self.config.policy.rank_candidates_by == "score" or pool[0].state == CandidateState.POTENTIAL:
+        if pool[0].state == CandidateState.POTENTIAL:
             return max(pool, key=lambda c: (c.best_score, c.cluster.n_points))
         return pool[0]
 
@@ -326,8 +289,8 @@ class ModIINAgent(CandidateNavigation):
         pc = self.config.policy
         picked = self._pick(candidates)
         if picked is None and self._state.steps < pc.look_around_turns:
-            return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND,
-                            f"initial look-around {self._state.steps + 1}/{pc.look_around_turns}")
+            return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND, Event.LOOK_AROUND,
+                            event_facts(turn=self._state.steps + 1, turns=pc.look_around_turns))
         if picked is not None and picked.state == CandidateState.POTENTIAL:
             decision = self._deadline_over(obs, picked)
             if decision is not None:
@@ -335,9 +298,9 @@ class ModIINAgent(CandidateNavigation):
         if picked is not None:
             self.grid.set_goal_cells(picked.cluster.cells_ij)
             if picked.state == CandidateState.POTENTIAL:
-                decision = self._verify_by_approach(obs, picked)
+                decision, self._state = self.nav.verify_by_approach(self._scene(obs), self._state, picked)
             else:
-                decision = self._approach(obs, picked.cluster)
+                decision, self._state = self.nav.approach(self._scene(obs), self._state, picked.cluster)
             if decision is not None:
                 return decision
             cands = self._evaluate(self.localiser.candidates(self.grid, self.tau))  # the candidate was rejected
@@ -346,11 +309,11 @@ class ModIINAgent(CandidateNavigation):
                 return self._decide(obs, cands)
         else:
             self.grid.clear_goal()
-        if self._deadline_due(obs):
-            decision = self._last_resort(obs)
+        due, self._state = self.nav.deadline_due(self._scene(obs), self._state)
+        if due:
+            decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
             if decision is not None:
-                left = self.config.policy.step_budget - obs.step
-                return replace(decision, reason=f"{left} steps of the budget left: {decision.reason}")
+                return decision.within(Context.DEADLINE, steps_left=pc.step_budget - obs.step)
         return self._explore(obs)
 
     def _deadline_over(self, obs: Observation, picked: GoalCandidate) -> Decision | None:
@@ -361,15 +324,17 @@ class ModIINAgent(CandidateNavigation):
             return None
         lr = self._state.last_resort
         cid = lr.candidate_id if lr.candidate_id is not None else self.memory.best_rejected(exclude=lr.tried)
-        if cid is None or self.memory.best_score_of(cid) <= picked.best_score or not self._deadline_due(obs):
+        if cid is None or self.memory.best_score_of(cid) <= picked.best_score:
             return None
-        decision = self._last_resort(obs)
+        due, self._state = self.nav.deadline_due(self._scene(obs), self._state)
+        if not due:
+            return None
+        decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
         tried = self._state.last_resort.candidate_id
         if decision is None or tried is None or self.memory.best_score_of(tried) <= picked.best_score:
             return None  # the rejected ones left to try are no better (those better were unreachable)
-        left = pc.step_budget - obs.step
-        return replace(decision, reason=f"{left} steps of the budget left, potential candidate weaker "
-                                        f"(best score {picked.best_score:.1f}): {decision.reason}")
+        return decision.within(Context.DEADLINE_OVER_WEAKER, steps_left=pc.step_budget - obs.step,
+                               score=picked.best_score)
 
     def _explore(self, obs: Observation) -> Decision:
         """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end."""
@@ -391,11 +356,11 @@ class ModIINAgent(CandidateNavigation):
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
             self._set(rescan=replace(self._state.rescan, steps=0))
-            action = self._safe(plan, pose, field)
+            action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
             if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
-            return Decision(action, Mode.EXPLORE, f"frontier ({choice.reason})", plan=plan, target_kind="frontier",
-                            planner_error=error)
+            return Decision(action, Mode.EXPLORE, Event.FRONTIER, event_facts(choice=choice.reason), plan=plan,
+                            target_kind="frontier", planner_error=error)
         return self._rescan(obs, error)
 
     def _rescan(self, obs: Observation, error: str | None) -> Decision:
@@ -415,18 +380,16 @@ class ModIINAgent(CandidateNavigation):
             else:
                 r = replace(r, steps=steps)
             self._set(rescan=r)
-            return Decision(Action.TURN_LEFT, Mode.RESCAN, "no reachable frontier: looking around again",
-                            planner_error=error or "no_frontier")
+            return Decision(Action.TURN_LEFT, Mode.RESCAN, Event.RESCAN, planner_error=error or "no_frontier")
         if self.config.policy.last_resort:
-            decision = self._last_resort(obs)
+            decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
             if decision is not None:
                 return decision
         decision = self._recheck(obs)
         if decision is not None:
             return decision
         # Nothing left to explore and no goal: a deliberate stop, reported as such.
-        return Decision(Action.STOP, Mode.EXHAUSTED, "no reachable frontier and no goal candidate",
-                        planner_error=error or "no_frontier")
+        return Decision(Action.STOP, Mode.EXHAUSTED, Event.EXHAUSTED, planner_error=error or "no_frontier")
 
     def _recheck(self, obs: Observation) -> Decision | None:
         """The second look when exhausted (``policy.exhausted_recheck_frames``): score the kept
@@ -437,23 +400,20 @@ class ModIINAgent(CandidateNavigation):
                 or pc.reid_source != "matcher" or pc.localisation_source != "goal_mask"):
             return None
         self._set(rechecked=True)
-        self._candidates_changed = True  # the candidates change during this decision: the record re-reads them
         frames = self.shortlist.take()
         scored = [(kept, self.reid.compare(kept.rgb, use_gate=False)) for _, kept in frames
                   if self.localiser.view(kept.step) is None]
-        floor = pc.exhausted_recheck_min_share * max((r.score for _, r in scored), default=0.0)
-        scores = [r.score for kept, r in scored
-                  if r.score > 0 and r.score >= floor and len(self._localise(kept, r, r.score))]
-        found = f"{len(scores)} of the {len(frames)} frames kept added points" + (
-            f" (best score {max(scores):.1f})" if scores else "")
-        log.info("exploration exhausted with no candidate: second look, %s", found)
+        scores = [r.score for kept, r in scored if r.score > 0 and len(self._localise(kept, r, r.score))]
+        best = max(scores) if scores else None
+        log.info("exploration exhausted with no candidate: second look, %d of the %d frames kept added points",
+                 len(scores), len(frames))
         cands = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if scores else []
         if not cands:
             return None
         decision = self._decide(obs, cands)
         if decision.mode == Mode.EXHAUSTED:
             return None
-        return replace(decision, reason=f"{SECOND_LOOK}: {found}; {decision.reason}")
+        return decision.within(Context.SECOND_LOOK, added=len(scores), kept=len(frames), best=best)
 
 
 def _ms(t0: float) -> float:

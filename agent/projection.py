@@ -119,30 +119,3 @@ def project_points(
         u = intrinsics.fx * xc / zc + intrinsics.cx
         v = intrinsics.fy * yc / zc + intrinsics.cy
     return np.stack([u, v], axis=1), zc
-
-
-def view_of_points(xyz_run: np.ndarray, obs, margin_m: float, margin_frac: float = 0.0):
-    """Where the run-frame points (N, 3) fall in ``obs``'s frame and whether each is seen.
-
-    Returns (in_frame (N,) bool: in the image where the depth has a reading; seen (N,) bool: in
-    the frame and the depth there is not more than ``margin_m`` plus ``margin_frac`` of the
-    point's depth nearer than the point (nearer means something stands between the camera and
-    it); uv (N, 2) int64 pixel (column, row), valid where in_frame). obs: an ``Observation``."""
-    pts = np.asarray(xyz_run, np.float64).reshape(-1, 3)
-    uvf, z = project_points(pts, obs.intrinsics, obs.pose, obs.camera_height_m, obs.camera_tilt_rad)
-    h, w = obs.depth_m.shape
-    ok = np.isfinite(uvf).all(axis=1) & (z > 0.05)
-    uv = np.zeros((len(pts), 2), np.int64)
-    uv[ok] = np.floor(uvf[ok])
-    ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-    depth = np.zeros(len(pts), np.float64)
-    depth[ok] = obs.depth_m[uv[ok, 1], uv[ok, 0]]
-    ok &= depth > 0
-    seen = ok & (depth >= z * (1.0 - margin_frac) - margin_m)
-    return ok, seen, uv
-
-
-def points_in_view(xyz_run: np.ndarray, obs, margin_m: float, margin_frac: float = 0.0) -> tuple[int, int]:
-    """(in the frame, seen) counts of ``view_of_points``."""
-    ok, seen, _ = view_of_points(xyz_run, obs, margin_m, margin_frac)
-    return int(ok.sum()), int(seen.sum())

@@ -274,8 +274,9 @@ class AgentRecord:
     """A read-only account of one agent step: what it did and why.
 
     mode: e.g. ``look_around``, ``explore``, ``approach``, ``verify``, ``stopped``.
-    event: what happened, as a stable name (``agent.events.Event``); ``reason`` is written from it
-        for people, and nothing parses ``reason``.
+    event: what happened, as a stable name (``agent.events.Event``), and context: what it was
+        decided in (``agent.events.Context``: the last resort, the deadline, the second look, ...);
+        ``reason`` is written from them for people, and nothing parses ``reason``.
     reid_score: score of this frame against the goal (None if re-ID did not run; 0 when the
         gate skipped the full matcher).
     reid_full_matcher: whether the full (learned) matcher ran on this frame (None: no re-ID).
@@ -298,6 +299,7 @@ class AgentRecord:
     mode: str
     reason: str
     event: str | None = None  # the decision's event (``agent.events.Event`` value); reason is its prose
+    context: tuple[str, ...] = ()  # the contexts it was decided in (``agent.events.Context`` values), outermost first
     reid_score: float | None = None
     reid_tau: float | None = None
     reid_full_matcher: bool | None = None

@@ -58,12 +58,10 @@ def main() -> int:
     agent = ModIINAgent(cfg)
     # the shadows: the same agent without what issue 9 added, acting on the very same frames
     variants = {"default": cfg}
-    if cfg.reid.early_stop != -1.0:
-        variants["all layers"] = replace(cfg, reid=replace(cfg.reid, early_stop=-1.0))
     if cfg.reid.gate and cfg.reid.gate_exit_layer:
         variants["no exit stage"] = replace(cfg, reid=replace(cfg.reid, gate_exit_layer=0))
     if cfg.reid.gate:
-        variants["no gate, all layers"] = replace(cfg, reid=replace(cfg.reid, gate=False, early_stop=-1.0))
+        variants["no gate"] = replace(cfg, reid=replace(cfg.reid, gate=False))
     shadows = {name: ModIINAgent(c) for name, c in variants.items() if name != "default"}
     samples = {name: {k: [] for k in PARTS} for name in variants}
     full_runs = {name: 0 for name in samples}
@@ -115,8 +113,8 @@ def main() -> int:
         w.close()
     n = len(samples["default"]["total"])
     print(f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
-          f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, early stop "
-          f"{cfg.reid.early_stop:g}, torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
+          f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, "
+          f"torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
           f"{es.split} episodes; every variant on the same frames, back to back")
     med = {name: {k: statistics.median(v) for k, v in per.items() if v} for name, per in samples.items()}
     names = list(variants)

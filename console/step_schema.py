@@ -61,6 +61,8 @@ REAL = SqlType("REAL", float, float, float)
 TEXT = SqlType("TEXT", _text, str, str)
 BOOL = SqlType("INTEGER", bool, int, bool)  # SQLite has no boolean: 0 / 1
 JSON = SqlType("TEXT", lambda v: v, dumps, json.loads)  # a mapping or list, as a JSON text column
+# a tuple of names (enum values), as a JSON list; read back as a tuple, as the agent wrote it
+NAMES = SqlType("TEXT", lambda v: tuple(_text(x) for x in v), lambda v: dumps(list(v)), lambda t: tuple(json.loads(t)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +144,7 @@ class StepRow:
     reid_gate_score: float | None = agent_field("reid_gate_score", REAL)  # the gate's cheap score (None: gate off)
     reid_exit_score: float | None = agent_field("reid_exit_score", REAL)  # LighterGlue's score after its exit layer
     event: str | None = agent_field("event", TEXT)  # the decision's event (agent.events.Event value)
+    context: tuple[str, ...] | None = agent_field("context", NAMES)  # what it was decided in (agent.events.Context values)
 
 
 @dataclass(frozen=True, slots=True)
@@ -276,7 +279,9 @@ class StepSchema:
         """``AgentRecord`` keyword arguments from a step's JSON: every field that copies one of
         its attributes (the viewer's replay rebuilds the record the agent gave)."""
         return {
-            c.agent_attr: step_json[c.name] for c in self.columns if c.agent_attr is not None and c.name in step_json
+            c.agent_attr: None if step_json[c.name] is None else c.type.normalise(step_json[c.name])
+            for c in self.columns
+            if c.agent_attr is not None and c.name in step_json
         }
 
 

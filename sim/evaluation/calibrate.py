@@ -117,9 +117,7 @@ def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: 
     from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs
 
     base = load_agent_config(args.config).reid
-    # the early stop is LighterGlue's (make_matcher refuses it elsewhere): other matchers score all layers
-    early_stop = base.early_stop if matcher_name == "xfeat_lighterglue" else -1.0
-    cfg = replace(base, matcher=matcher_name, num_threads=args.threads, early_stop=early_stop)
+    cfg = replace(base, matcher=matcher_name, num_threads=args.threads)
     inst = [e["instance"] for e in entries]
     ps = make_pairs(inst, args.max_negatives, args.seed)
     if getattr(args, "ray", None):  # features and matching in Ray tasks; times are task CPU seconds
@@ -161,14 +159,13 @@ def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: 
             "negative_weight": float(ps.weight[~ps.label][0]) if (~ps.label).any() else 1.0,
             "split": "train", "scene_set": args.scene_set, "seed": args.seed,
             "goal_max_keypoints": cfg.goal_max_keypoints, "max_side_px": cfg.max_side_px,
-            "early_stop": cfg.early_stop,
             "feature_ms_per_image": 1000 * t_feat / max(len(entries), 1),
             "match_ms_per_pair": 1000 * t_match / max(len(ps.pairs), 1),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         }
         (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
         if not args.no_write_agent:
-            calibration_path(matcher_name, kind, cfg.early_stop).write_text(json.dumps(res, indent=1) + "\n")
+            calibration_path(matcher_name, kind).write_text(json.dumps(res, indent=1) + "\n")
         log.info("%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)", matcher_name, kind, c.max_f, c.tau,
                  res["precision_at_tau"], res["recall_at_tau"])
         results[kind] = res

@@ -22,6 +22,11 @@ Against the first run each variant also says on how many episodes it took exactl
 actions (a change meant to leave the agent's decisions alone should say "all").
 
 ``--all`` uses each run's own episodes for the first table instead (unpaired).
+
+``--identical`` checks a change meant to leave the agent alone (a refactoring): on the episodes
+both runs have, every field of each record must be equal, apart from timings (``timing``,
+``modiin.median_ms``) and the fields named with ``--ignore`` (dotted paths, e.g.
+``agent_config``); it lists every other difference and exits 1 when there is one.
 """
 
 from __future__ import annotations
@@ -207,12 +212,74 @@ def cost(records: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     }
 
 
+TIMING_FIELDS = ("timing", "modiin.median_ms")
+
+
+def record_differences(a: Any, b: Any, ignore: Sequence[str] = (), path: str = "") -> list[str]:
+    """Dotted paths where two records differ (``ignore``: paths left out, with their subtrees;
+    a key only one side has is a difference, listed as ``path (only in the first/second)``)."""
+    if path in ignore:
+        return []
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        out = []
+        for k in sorted(set(a) | set(b), key=str):
+            sub = f"{path}.{k}" if path else str(k)
+            if sub in ignore:
+                continue
+            if k not in b:
+                out.append(f"{sub} (only in the first)")
+            elif k not in a:
+                out.append(f"{sub} (only in the second)")
+            else:
+                out += record_differences(a[k], b[k], ignore, sub)
+        return out
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in record_differences(x, y, ignore, f"{path}[{i}]")]
+    return [] if a == b else [path or "(record)"]
+
+
+def identical(base_dir: str, other_dir: str, ignore: Sequence[str] = ()) -> tuple[int, list[str]]:
+    """(episodes compared, lines naming each difference) between two runs' records."""
+    a, b = load_records(base_dir), load_records(other_dir)
+    common = sorted(set(a) & set(b))
+    lines = []
+    for eid in common:
+        diffs = record_differences(a[eid], b[eid], (*TIMING_FIELDS, *ignore))
+        lines += [f"{eid}: {d}: {_short(a[eid], d)} -> {_short(b[eid], d)}" for d in diffs]
+    return len(common), lines
+
+
+def _short(rec: Mapping[str, Any], dotted: str) -> str:
+    v: Any = rec
+    for part in dotted.split(" (")[0].replace("]", "").replace("[", ".").split("."):
+        if isinstance(v, Mapping):
+            v = v.get(part)
+        elif isinstance(v, list) and part.isdigit() and int(part) < len(v):
+            v = v[int(part)]
+        else:
+            return "?"
+    text = json.dumps(v)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sim.evaluation.compare", description=__doc__.split("\n\n")[0])
     ap.add_argument("out_dirs", nargs="+", help="imgnav eval output directories; the first is the base")
     ap.add_argument("--all", action="store_true", help="first table on each run's own episodes (unpaired)")
+    ap.add_argument("--identical", action="store_true",
+                    help="check that the second run's records equal the first's, field for field, apart from timings")
+    ap.add_argument("--ignore", nargs="*", default=[], metavar="PATH",
+                    help="with --identical: dotted record fields to leave out (e.g. agent_config)")
     args = ap.parse_args(argv)
     try:
+        if args.identical:
+            if len(args.out_dirs) != 2:
+                raise ValueError("--identical compares exactly two runs")
+            n, lines = identical(args.out_dirs[0], args.out_dirs[1], args.ignore)
+            print("\n".join(lines) if lines else "")
+            print(f"{n} episodes compared: {'identical' if not lines else f'{len(lines)} differences'} "
+                  f"(timings{' and ' + ', '.join(args.ignore) if args.ignore else ''} left out)")
+            return 0 if not lines else 1
         print(compare(args.out_dirs, paired=not args.all))
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

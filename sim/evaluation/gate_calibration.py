@@ -189,7 +189,6 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
     result: dict = {}
     for matcher_name in args.matcher:
         cfg = replace(base, matcher=matcher_name, num_threads=args.threads, tau=None, gate=True,
-                      early_stop=base.early_stop if matcher_name == "xfeat_lighterglue" else -1.0,
                       gate_exit_layer=base.gate_exit_layer if matcher_name == "xfeat_lighterglue" else 0)
         taus = {kind: resolve_tau(replace(cfg, score=kind)) for kind in ("conf", "count")}
         matcher = make_matcher(cfg)
@@ -202,7 +201,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
         cached = np.load(scores_path) if scores_path.is_file() else None
         if (cached is not None and np.array_equal(cached["pairs"], ps.pairs) and np.array_equal(cached["images"], key)
                 and float(cached["min_cosine"]) == cfg.gate_min_cosine
-                and (float(cached["early_stop"]) if "early_stop" in cached.files else -1.0) == cfg.early_stop
+                and (float(cached["early_stop"]) if "early_stop" in cached.files else -1.0) == -1.0
                 and (int(cached["exit_layer"]) if "exit_layer" in cached.files else 0) == exit_layer):
             # the same images and pairs were scored by an earlier run (e.g. before more records came)
             conf, count, gate, ms_pair = cached["conf"], cached["count"], cached["gate"], float(cached["ms_pair"])
@@ -218,7 +217,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
             ms_pair = 1000 * (time.perf_counter() - t0) / max(len(ps.pairs), 1)
             np.savez_compressed(scores_path, pairs=ps.pairs, label=ps.label, images=key, conf=conf, count=count,
                                 gate=gate, exit_conf=exit_conf, exit_count=exit_count, exit_layer=exit_layer,
-                                min_cosine=cfg.gate_min_cosine, ms_pair=ms_pair, early_stop=cfg.early_stop)
+                                min_cosine=cfg.gate_min_cosine, ms_pair=ms_pair)
         ego_full, ego_gate, ego_eps = frames_from_records(args.gate_records)
         ego_exit = np.full(len(ego_full), np.nan)  # score records carry no exit-stage scores
         if getattr(args, "gate_frames", None):
@@ -260,7 +259,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                           xlabel=f"exit-stage score (after layer {exit_layer})")
                 update.update(gate_exit_layer=exit_layer, gate_exit_threshold=exit_threshold,
                               gate_exit_sources=exit_figures)
-            path = calibration_path(matcher_name, kind, cfg.early_stop)
+            path = calibration_path(matcher_name, kind)
             data = json.loads(path.read_text())
             data.update(update)
             (out / f"{matcher_name}_{kind}_gate.json").write_text(json.dumps(data, indent=1) + "\n")

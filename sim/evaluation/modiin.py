@@ -34,7 +34,7 @@ import numpy as np
 
 from agent.config import AgentConfig, agent_config_from_dict, load_agent_config
 from agent.configio import to_dict
-from agent.modes import SECOND_LOOK
+from agent.events import Context
 from agent.types import Action, AgentRecord, Observation
 from sim.evaluation.registry import AgentSpec, register
 
@@ -236,7 +236,7 @@ class Attribution:
         self.gated_goal_in_view += bool(seen and record.reid_full_matcher is False)
         self.last = record
         self.modes[record.mode] += 1
-        if self.second_look_step is None and record.reason.startswith(SECOND_LOOK):
+        if self.second_look_step is None and Context.SECOND_LOOK.value in record.context:
             self.second_look_step = obs.step
         if record.planner_error:
             self.planner_errors += 1
@@ -317,6 +317,8 @@ class Attribution:
                 "candidate_on_goal_steps": self.candidate_on_goal_steps,
                 "final_mode": self.last.mode if self.last else None,
                 "final_reason": self.last.reason if self.last else None,
+                "final_event": self.last.event if self.last else None,
+                "final_context": list(self.last.context) if self.last else None,
                 "planner_errors": self.planner_errors,
                 "modes": dict(self.modes),
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},

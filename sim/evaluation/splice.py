@@ -16,9 +16,6 @@ RERUN's records in place of the episodes RERUN holds, after checking the claim o
 A re-run that fails a check is an error (nothing is written): the splice would not be the
 variant's result.
 
-``--hidden-stop`` splices the view check at the stop (``policy.stop_needs_view``): it acts only at
-a STOP whose view of the candidate was hidden, which the base's final reason reports.
-
 ``--from-step N`` splices the last resort at the deadline (``policy.last_resort_at_deadline``): it
 checks only in the last ``deadline_window_steps`` of the budget, so it cannot act before step N
 (1000 - 200 = 800 by default), and the base episodes that ended by then are untouched.
@@ -67,7 +64,6 @@ class ActsAt:
 
     ended_in: str | None = None
     oscillation: int | None = None
-    hidden_stop: bool = False
     from_step: int | None = None
     rejected: bool = False
     in_mode: str | None = None
@@ -80,8 +76,6 @@ class ActsAt:
         if self.oscillation is not None:
             k = first_oscillation(actions, self.oscillation)
             return None if k is None else k + 1
-        if self.hidden_stop:
-            return max(len(actions) - 1, 0) if stopped_hidden(rec) else None
         if self.rejected:
             return first_score_step(rec) if rejected_any(rec) else None
         if self.in_mode is not None:
@@ -95,21 +89,11 @@ class ActsAt:
             return f"the base ended within its first {self.from_step} steps"
         if self.oscillation is not None:
             return f"the base never turned to and fro {self.oscillation} times in a row"
-        if self.hidden_stop:
-            return "the base's stop did not find the goal hidden"
         if self.rejected:
             return "the base rejected no candidate"
         if self.in_mode is not None:
             return f"the base spent no step in mode {self.in_mode!r}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
-
-
-def stopped_hidden(rec: dict[str, Any]) -> bool:
-    """Whether the base's final STOP found the candidate hidden from the stop spot (its reason
-    says ", hidden)"): the view check (``policy.stop_needs_view``) acts only at such a stop, as
-    it runs only when the agent is about to STOP, and the agent stops once."""
-    m = rec.get("modiin") or {}
-    return m.get("final_mode") == "stopped" and ", hidden)" in str(m.get("final_reason") or "")
 
 
 def rejected_any(rec: dict[str, Any]) -> bool:
@@ -226,9 +210,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--ended-in", default="exhausted", help="the base episodes' final mode from which the change acts")
     p.add_argument("--oscillation", type=int, default=None, metavar="N",
                    help="instead: the change acts after the base's first N alternating turns on the spot")
-    p.add_argument("--hidden-stop", action="store_true",
-                   help="instead: the change acts at the base's final STOP where its view check found the goal hidden "
-                        "(the view check, policy.stop_needs_view)")
     p.add_argument("--from-step", type=int, default=None, metavar="N",
                    help="instead: the change can act only from step N on, in base episodes longer than N steps "
                         "(the last resort at the deadline: step_budget - deadline_window_steps, 800)")
@@ -241,8 +222,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
-    elif args.hidden_stop:
-        acts_at = ActsAt(hidden_stop=True)
     elif args.rejected:
         acts_at = ActsAt(rejected=True)
     elif args.in_mode:

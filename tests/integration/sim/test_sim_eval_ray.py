@@ -128,7 +128,7 @@ def test_calibration_pairs_scored_on_the_cluster_equal_the_local_scores(two_home
         ok, buf = cv2.imencode(".png", cv2.cvtColor(getattr(skimage.data, name)(), cv2.COLOR_RGB2BGR))
         pngs.append(buf.tobytes())
     rgbs = [cv2.cvtColor(cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB) for b in pngs]
-    cfg = ReIDConfig(matcher="sift")
+    cfg = ReIDConfig(matcher="sift", gate=False)
     matcher = make_matcher(cfg)
     pairs = make_pairs([0, 1, 1, 2, 3, 4], max_negatives=0).pairs
     want = score_pairs(matcher, [matcher.extract(x, cfg.goal_max_keypoints) for x in rgbs], pairs)

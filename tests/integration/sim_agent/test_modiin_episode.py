@@ -49,7 +49,7 @@ def test_oracle_reid_and_localisation_reach_the_goal(episode):
 def test_default_agent_steps_with_real_matching(episode):
     es, ep, world = episode
     backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep), max_steps=16)
-    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=10.0, num_threads=1)))
+    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=10.0, num_threads=1, gate=False)))
     obs = backend.reset()
     agent.reset(obs.goal_image)
     records: list[AgentRecord] = []

@@ -25,18 +25,17 @@ def test_views_and_states():
     assert cl.frames == (0,) and cl.id == 0
     v = loc.view(0)
     assert v is not None and v.score == 80.0 and 2.9 < v.distance_m < 3.1  # to the box's near face
-    # any detection confirms without verification; with it, only one from within range
-    assert evaluate(cl, loc, tau=75.0, verify_range_m=None).state == CandidateState.CONFIRMED
-    far = evaluate(cl, loc, tau=75.0, verify_range_m=2.0)
-    assert far.state == CandidateState.POTENTIAL and far.best_score == 80.0
+    # a detection confirms it, from any distance
+    c = evaluate(cl, loc, tau=75.0)
+    assert c.state == CandidateState.CONFIRMED and c.best_score == 80.0
+    # views below tau alone leave a candidate potential, unless a look from the verify ring confirmed it
+    assert evaluate(cl, loc, tau=85.0).state == CandidateState.POTENTIAL
     assert len(_add_view(loc, Pose2D(1.5, 0.0, 0.0), 5, 50.0))
     (cl,) = loc.candidates(GridMap())
     assert cl.frames == (0, 5) and cl.id == 0  # the same candidate, two views
-    c = evaluate(cl, loc, tau=75.0, verify_range_m=2.0)
-    assert c.state == CandidateState.POTENTIAL and c.best_score_within(2.0) == 50.0
-    assert len(_add_view(loc, Pose2D(1.6, 0.1, 0.0), 6, 90.0))
-    (cl,) = loc.candidates(GridMap())
-    assert evaluate(cl, loc, tau=75.0, verify_range_m=2.0).state == CandidateState.CONFIRMED
+    c = evaluate(cl, loc, tau=85.0)
+    assert c.state == CandidateState.POTENTIAL and c.best_score == 80.0 and c.best_score_within(2.0) == 50.0
+    assert evaluate(cl, loc, tau=85.0, confirmed_steps=frozenset({5})).state == CandidateState.CONFIRMED
 
 
 def test_memory_reports_live_and_rejected_candidates():
@@ -44,7 +43,7 @@ def test_memory_reports_live_and_rejected_candidates():
     _add_view(loc, Pose2D(0.0, 0.0, 0.0), 3, 80.0)
     (cl,) = loc.candidates(GridMap())
     mem = CandidateMemory()
-    live = [evaluate(cl, loc, 75.0, None)]
+    live = [evaluate(cl, loc, 75.0)]
     (info,) = mem.infos(live, (0.0, 0.0))
     assert info.state == "confirmed" and info.n_views == 1 and info.best_score == 80.0
     assert 3.0 < info.distance_m < 3.7
@@ -65,7 +64,7 @@ def test_rejected_clusters_are_kept_for_the_last_resort_best_evidence_first():
     (cl,) = loc.candidates(grid)
     mem = CandidateMemory()
     assert mem.best_rejected() is None
-    weak = evaluate(cl, loc, 75.0, 2.0)
+    weak = evaluate(cl, loc, 75.0)
     mem.reject(weak, (0.0, 0.0), grid.ij_to_xy(cl.cells_ij))
     # a second, better-scoring rejected candidate elsewhere (same cluster shape, another id)
     from dataclasses import replace

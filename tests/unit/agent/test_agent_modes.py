@@ -3,9 +3,11 @@
 import math
 
 import numpy as np
+import pytest
 
 from agent.config import AgentConfig, PolicyConfig
-from agent.modes import SCAN_TURNS, Decision, Mode
+from agent.events import Context, Event
+from agent.modes import Decision, Mode
 from agent.policy import ModIINAgent
 from agent.types import Action, Pose2D
 from tests.helpers.agent_runs import oracle_agent, oracle_config, run_decisions
@@ -17,10 +19,10 @@ def test_look_around_then_explore_then_approach_then_stopped():
     world = BoxWorld(boxes, Pose2D(-1.0, 1.5, -0.5), goal)  # the goal is hidden behind the wall
     steps = run_decisions(oracle_agent(world, look_around_turns=12), world)
     modes = [d.mode for d, _ in steps]
-    # LOOK_AROUND: the first 12 steps turn left on the spot, counted in the reason
+    # LOOK_AROUND: the first 12 steps turn left on the spot, counted in the event's numbers
     assert modes[:12] == [Mode.LOOK_AROUND] * 12
     assert all(d.action == Action.TURN_LEFT and d.candidate is None and d.plan is None for d, _ in steps[:12])
-    assert steps[0][0].reason == "initial look-around 1/12"
+    assert steps[0][0].event == Event.LOOK_AROUND and dict(steps[0][0].facts) == {"turn": 1, "turns": 12}
     # EXPLORE: frontier targets with a plan, no candidate (the goal is in the other room)
     explore = [d for d, _ in steps if d.mode == Mode.EXPLORE]
     assert explore and all(d.target_kind == "frontier" and d.plan is not None and d.candidate is None for d in explore)
@@ -34,38 +36,19 @@ def test_look_around_then_explore_then_approach_then_stopped():
     assert rec.mode == "stopped" and world.distance_to_goal() < 1.0
 
 
-def test_verify_scans_then_rejects_an_unconfirmed_candidate():
-    """The candidate is seen only from afar (re-ID never fires within verify_range_m): at the
-    stop point the agent scans (VERIFY, the SCAN_TURNS), then rejects it and explores on."""
-    boxes, goal, _ = two_rooms()
-    world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
-    agent = ModIINAgent(oracle_config(verify=True, verify_range_m=1.5, look_around_turns=0),
-                        oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() > 2.0,
-                        oracle_ego_mask=world.goal_mask)
-    steps = run_decisions(agent, world, max_steps=200)
-    modes = [d.mode for d, _ in steps]
-    assert Mode.VERIFY in modes
-    k = modes.index(Mode.VERIFY)
-    scan = [d.action for d in [s[0] for s in steps[k:k + len(SCAN_TURNS)]]]
-    assert scan == list(SCAN_TURNS)
-    assert all(d.reason == "scanning for a close-range match" for d, _ in steps[k:k + len(SCAN_TURNS)])
-    # after the scan, the candidate is gone: never STOPPED at it
-    assert Mode.STOPPED not in modes[k:]
-    after, rec = steps[k + len(SCAN_TURNS)]
-    assert after.candidate is None and after.mode in (Mode.EXPLORE, Mode.RESCAN, Mode.EXHAUSTED)
-    # the record says why it was given up
-    assert [c.why for c in rec.candidates if c.state == "rejected"] == ["no close-range re-identification"]
+REJECTED_AT = 15  # the step by which the looks from the verify ring have rejected the goal (see the tests)
 
 
 def _rejected_then_exhausted(last_resort: bool, max_steps: int = 600, **policy):
-    """The goal is re-identified only from afar, so close-range verification rejects it; then
-    exploration of the two small rooms runs out (at about step 65)."""
-    boxes, goal, _ = two_rooms()
+    """The goal only ever scores 60 (tau 100): a potential candidate, which the looks from the verify
+    ring reject (only a detection confirms: ``verify_ring_tau_ratio`` 1); then exploration of the
+    two small rooms runs out. The deadline is off unless asked for."""
+    boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
-    agent = ModIINAgent(oracle_config(verify=True, verify_range_m=1.5, look_around_turns=4, max_rescans=1,
-                                      last_resort=last_resort, **policy),
-                        oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() > 2.0,
-                        oracle_ego_mask=world.goal_mask)
+    pol = dict(look_around_turns=4, max_rescans=1, last_resort=last_resort, verify_ring_tau_ratio=1.0,
+               last_resort_at_deadline=False, exhausted_recheck_frames=0)
+    pol.update(policy)
+    agent = _scored_agent(world, decoy, lambda d: 60.0, lambda d: 0.0, **pol)
     return world, run_decisions(agent, world, max_steps=max_steps)
 
 
@@ -80,9 +63,10 @@ def test_last_resort_goes_back_to_the_rejected_candidate_and_stops_there():
     assert len(rejected) == 1
     tried = [d for d, _ in steps[k:] if d.mode == Mode.LAST_RESORT]
     assert all(d.candidate is not None and d.candidate.id == rejected[0].id and d.target_kind == "goal" for d in tried)
-    assert all(d.reason.startswith("last resort (rejected candidate, best score") for d in tried)
+    assert all(d.has(Context.LAST_RESORT) for d in tried)
     last, rec = steps[-1]
-    assert last.action == Action.STOP and last.mode == Mode.STOPPED and "the last resort" in last.reason
+    assert last.action == Action.STOP and last.mode == Mode.STOPPED and last.has(Context.LAST_RESORT)
+    assert rec.event == Event.STOP_AT_GOAL.value and rec.context == (Context.LAST_RESORT.value,)
     assert rec.candidate_id == rejected[0].id and len(rec.goal_points_xyz) > 0
     assert world.distance_to_goal() < 1.0
 
@@ -108,12 +92,13 @@ def test_the_last_resort_at_the_deadline_goes_back_before_the_budget_runs_out():
     # from the step it was due on, the last resort comes before exploration, to the end
     assert all(d.mode in (Mode.LAST_RESORT, Mode.STOPPED) for d, _ in steps[k:])
     assert all(d.candidate is not None and d.candidate.id == rejected[0].id for d, _ in steps[k:])
-    first = steps[k][0].reason
-    assert first.split(" steps of the budget left: ")[1].startswith("last resort (rejected candidate")
-    left = int(first.split(" ")[0])
-    assert left == 100 - k and 0 < left <= 100 - 15  # due after the rejection (step 15), before the end
+    first = steps[k][0]
+    assert first.has(Context.DEADLINE) and first.has(Context.LAST_RESORT)
+    (deadline,) = [n for n in first.context if n.context == Context.DEADLINE]
+    left = deadline.facts["steps_left"]
+    assert left == 100 - k and 0 < left <= 100 - REJECTED_AT  # due after the rejection, before the end
     last, rec = steps[-1]
-    assert last.action == Action.STOP and last.mode == Mode.STOPPED and "the last resort" in last.reason
+    assert last.action == Action.STOP and last.mode == Mode.STOPPED and last.has(Context.LAST_RESORT)
     assert len(steps) < 100 and world.distance_to_goal() < 1.0
 
 
@@ -131,8 +116,8 @@ def test_the_deadline_is_not_checked_before_its_window():
     on = _rejected_then_exhausted(last_resort=True, last_resort_at_deadline=True, step_budget=1000)[1]
     off = _rejected_then_exhausted(last_resort=True)[1]
     assert [d.action for d, _ in on] == [d.action for d, _ in off]
-    assert [d.reason for d, _ in on] == [d.reason for d, _ in off]
-    assert "steps of the budget left" not in " ".join(d.reason for d, _ in on)
+    assert [(d.event, d.context) for d, _ in on] == [(d.event, d.context) for d, _ in off]
+    assert not any(d.has(Context.DEADLINE) for d, _ in on)
 
 
 def test_approach_turns_to_face_before_stopping():
@@ -140,7 +125,7 @@ def test_approach_turns_to_face_before_stopping():
     # in room B, within the stop radius of the goal but facing away from it
     world = BoxWorld(boxes, Pose2D(3.7, 0.6, math.pi), goal)
     steps = run_decisions(oracle_agent(world, look_around_turns=12), world, max_steps=40)
-    facing = [d for d, _ in steps if d.reason == "at the goal: turning to face it"]
+    facing = [d for d, _ in steps if d.event == Event.FACE_GOAL]
     assert steps[-1][0].mode == Mode.STOPPED
     assert all(d.mode == Mode.APPROACH and d.action in (Action.TURN_LEFT, Action.TURN_RIGHT) for d in facing)
 
@@ -163,12 +148,12 @@ def test_mode_names_are_the_record_strings():
 
 
 def test_decision_is_frozen():
-    d = Decision(Action.STOP, Mode.STOPPED, "x")
-    try:
-        d.reason = "y"  # type: ignore[misc]
-    except AttributeError:
-        return
-    raise AssertionError("Decision must be frozen")
+    import dataclasses
+
+    d = Decision(Action.STOP, Mode.STOPPED, Event.STOP_AT_GOAL)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        d.event = Event.EXHAUSTED  # type: ignore[misc]
+    assert d.within(Context.LAST_RESORT, score=1.0) is not d and d.context == ()
 
 
 def test_candidates_are_in_the_record():
@@ -183,39 +168,20 @@ def test_candidates_are_in_the_record():
 
 
 def test_verify_by_approach_confirms_a_goal_first_seen_from_afar():
-    boxes, goal, _ = two_rooms()
+    """The goal scores 60 from afar (potential) and 200 from within 2.6 m: the agent goes to the
+    verify ring, a look from there is a detection, and the candidate is confirmed and stopped at
+    (only a detection confirms here: ``verify_ring_tau_ratio`` 1)."""
+    boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)  # sees the goal through the door, ~5 m away
-    agent = oracle_agent(world, verify=True, verify_by="approach", verify_range_m=2.5)
+    agent = _scored_agent(world, decoy, lambda d: 200.0 if d < 2.6 else 60.0, lambda d: 0.0, verify_ring_tau_ratio=1.0)
     steps = run_decisions(agent, world, max_steps=300)
     verify = [d for d, _ in steps if d.mode == Mode.VERIFY]
-    assert verify and verify[0].reason.startswith("verify:")
+    assert verify and verify[0].event == Event.VERIFY_APPROACH
     # potential while verifying, then confirmed
     assert any(c.state == "potential" for _, r in steps for c in r.candidates)
     last, rec = steps[-1]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert [c.state for c in rec.candidates if c.id == rec.candidate_id] == ["confirmed"]
-
-
-def test_verify_by_approach_rejects_what_only_matches_from_afar():
-    boxes, goal, decoy = two_rooms()
-    world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
-
-    def reid(obs):  # a false positive on the decoy from afar only; the true goal from anywhere
-        if np.count_nonzero(world._ids == decoy) >= 20 and world.pose.distance_to(Pose2D(-2.3, 1.5)) > 2.6:
-            return True
-        return world.goal_visible(obs)
-
-    def mask(obs):
-        m = world._ids == decoy
-        return m if m.any() and not world.goal_visible(obs) else world.goal_mask(obs)
-
-    agent = ModIINAgent(oracle_config(verify=True, verify_by="approach", verify_range_m=2.0, verify_views=4),
-                        oracle_reid=reid, oracle_ego_mask=mask)
-    steps = run_decisions(agent, world, max_steps=500)
-    last, rec = steps[-1]
-    assert any(c.state == "rejected" for c in rec.candidates)
-    assert any(d.reason.startswith("verify: look") for d, _ in steps)
-    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
 
 
 def test_stop_rule_core_stops_in_sight_of_the_goal():
@@ -243,32 +209,21 @@ def _longest_to_and_fro(steps) -> int:
     return best
 
 
-def test_the_turn_in_place_livelock_is_broken_and_the_run_ends():
-    # Without the guard: the plan points through the door, the motion memory refuses the move
+def test_the_side_step_gets_out_of_turning_to_and_fro():
+    # Without the side-step: the plan points through the door, the motion memory refuses the move
     # that failed there (a rescan forgave its collision mark), the refusal turns away, the plan
     # turns back: to and fro on the spot until the budget is spent.
     world = _kerb_world()
-    steps = run_decisions(oracle_agent(world), world, max_steps=300)
+    steps = run_decisions(oracle_agent(world, detour_after_turns=0), world, max_steps=300)
     assert len(steps) == 300 and steps[-1][0].action != Action.STOP
     assert _longest_to_and_fro(steps) >= 20
-    assert not any("side-step" in d.reason for d, _ in steps)  # policy.detour_after_turns is off by default
-    # With it: after 8 turns to and fro the frontier is given up, each time spending a rescan; the
-    # agent then ends exhausted (the goal room is out of reach) instead of spending the budget
+    assert not any(d.has(Context.SIDE_STEP) for d, _ in steps)
+    # With it (policy.detour_after_turns: 4, the default): after the 4th turn to and fro the agent
+    # turns to a free heading and steps forward once, without re-planning in between; the record
+    # says so. (The goal room stays out of reach: the kerb spans the door.)
     world = _kerb_world()
-    steps = run_decisions(oracle_agent(world, oscillation_turns=8), world, max_steps=400)
-    broken = [d for d, _ in steps if d.reason.startswith("turn-in-place livelock broken")]
-    assert len(broken) >= 1
-    assert steps[-1][0].mode == Mode.EXHAUSTED and len(steps) < 300
-    assert _longest_to_and_fro(steps) < 2 * 8 + 2
-
-
-def test_the_side_step_gets_out_of_turning_to_and_fro():
-    # The kerb world's livelock (above) with policy.detour_after_turns: 4: after the 4th turn to
-    # and fro the agent turns to a free heading and steps forward once, without re-planning in
-    # between; the reason says so. (The goal room stays out of reach: the kerb spans the door.)
-    world = _kerb_world()
-    steps = run_decisions(oracle_agent(world, detour_after_turns=4), world, max_steps=300)
-    side = [k for k, (d, _) in enumerate(steps) if d.reason.startswith("side-step out of turning to and fro; ")]
+    steps = run_decisions(oracle_agent(world), world, max_steps=300)
+    side = [k for k, (d, r) in enumerate(steps) if d.has(Context.SIDE_STEP) and r.context[:1] == ("side_step",)]
     assert len(side) >= 3
     # each side-step is turns (all the same way) and then one forward move
     runs, cur = [], [side[0]]
@@ -318,18 +273,19 @@ def _walled_in_run(**policy):
 
 
 def test_collision_marks_are_dropped_before_a_candidate_is_given_up_as_unreachable():
-    # Off (the default): after 10 steps without a plan the true goal is rejected, and the run
-    # ends exhausted far from it
-    world, steps = _walled_in_run()
+    # Off (and no last resort to come back to it): after 10 steps without a plan the true goal is
+    # rejected, and the run ends exhausted far from it
+    world, steps = _walled_in_run(unreachable_forgive=0, last_resort=False)
     last, rec = steps[-1]
     assert [(c.state, c.why) for c in rec.candidates] == [("rejected", "unreachable for 10 steps")]
     assert last.mode == Mode.EXHAUSTED and world.distance_to_goal() > 1.0
-    # policy.unreachable_forgive: 1: the marks are dropped once instead, and the agent stops at it
-    world, steps = _walled_in_run(unreachable_forgive=1)
+    # policy.unreachable_forgive: 1 (the default): the marks are dropped once instead, and the
+    # agent stops at it
+    world, steps = _walled_in_run()
     last, rec = steps[-1]
     assert [c.state for c in rec.candidates] == ["confirmed"]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
-    assert any(d.reason == "goal not reachable yet" for d, _ in steps)  # it was walled in first
+    assert any(d.event == Event.GOAL_NOT_REACHABLE_YET for d, _ in steps)  # it was walled in first
 
 
 def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
@@ -337,11 +293,11 @@ def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
     in view, the decoy ``decoy_score(distance)``; localisation from the true masks."""
     from agent.reid.base import Matches
     from agent.reid.identifier import ReIDConfig, ReIDResult
-    from test_agent_policy import NoMatcher
+    from tests.helpers.agent_runs import NoMatcher
 
-    pol = dict(reid_source="matcher", localisation_source="oracle", potential_tau_ratio=0.5, verify=False)
+    pol = dict(reid_source="matcher", localisation_source="oracle", potential_tau_ratio=0.5)
     pol.update(policy)
-    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=100.0), policy=PolicyConfig(**pol)), matcher=NoMatcher(),
+    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=100.0, gate=False), policy=PolicyConfig(**pol)), matcher=NoMatcher(),
                         oracle_ego_mask=lambda obs: world.goal_mask(obs) if world.goal_visible(obs) else world._ids == decoy)
     x0, y0, x1, y1, _ = world.boxes[decoy]
 
@@ -371,18 +327,19 @@ def test_a_look_from_the_verify_ring_at_half_tau_confirms_the_candidate():
         return run_decisions(agent, world, max_steps=400), world
 
     steps, world = run_with(0.5)
-    confirmed = [d for d, _ in steps if d.reason.startswith("re-identified from the verify ring (score 60)")]
+    confirmed = [d for d, _ in steps if d.has(Context.RING_CONFIRMED)]
     assert len(confirmed) == 1 and confirmed[0].mode == Mode.APPROACH
+    assert [n.facts["score"] for n in confirmed[0].context] == [60.0]
     # it was potential up to that look, confirmed from then on, and the robot stops at it
     first = next(i for i, (d, _) in enumerate(steps) if d is confirmed[0])
     assert any(c.state == "potential" for c in steps[first - 1][1].candidates)
-    assert not any(d.reason.startswith("verify: look") for d, _ in steps[first:])
+    assert not any(d.event in (Event.VERIFY_LOOK, Event.VERIFY_STEP_NEARER) for d, _ in steps[first:])
     last, rec = steps[-1]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert [c.state for c in rec.candidates if c.id == rec.candidate_id] == ["confirmed"]
 
     steps, _ = run_with(1.0)
-    assert not any(d.reason.startswith("re-identified from the verify ring") for d, _ in steps)
+    assert not any(d.has(Context.RING_CONFIRMED) for d, _ in steps)
     assert any(c.why == "not re-identified in 8 looks from the verify ring" for _, r in steps for c in r.candidates)
 
 
@@ -393,7 +350,7 @@ def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
     agent = _scored_agent(world, decoy, lambda d: 200.0, lambda d: 60.0 if d > 2.6 else 10.0, verify_ring_tau_ratio=0.5)
     steps = run_decisions(agent, world, max_steps=600)
     assert any(d.mode == Mode.VERIFY for d, _ in steps)
-    assert not any(d.reason.startswith("re-identified from the verify ring") for d, _ in steps)
+    assert not any(d.has(Context.RING_CONFIRMED) for d, _ in steps)
     last, rec = steps[-1]
     assert any(c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates)
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0

@@ -129,7 +129,7 @@ def test_identifier_skips_the_full_matcher_below_the_gate_and_runs_it_above():
     off.set_goal(image(0))
     r = off.compare(image(2))
     assert r.full_matcher and r.gate_score == 0 and m.match_calls == 2
-    plain = ReIdentifier(ReIDConfig(tau=5.0), matcher=m)
+    plain = ReIdentifier(ReIDConfig(tau=5.0, gate=False), matcher=m)
     plain.set_goal(image(0))
     assert plain.compare(image(2)).gate_score is None and m.match_calls == 3
 
@@ -236,7 +236,6 @@ def test_exit_threshold_from_config_or_calibration_file(tmp_path):
     assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 6.5
     assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_layer=3)) is None
     assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=60.0)) is None
-    # matchers are shared per key: the exit layer (a hook) and the early stop make matchers of their own
+    # matchers are shared per key: the exit layer (a hook) makes matchers of its own
     assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=False))
     assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=True, gate_exit_layer=3))
-    assert matcher_key(ReIDConfig(early_stop=0.9)) != matcher_key(ReIDConfig())

@@ -2,6 +2,7 @@
 the last resort comes before verifying a potential candidate whose evidence is below the best
 rejected one's."""
 
+from agent.events import Context
 from agent.modes import Mode
 from agent.types import Action, Pose2D
 from tests.helpers.agent_runs import painted_agent
@@ -41,7 +42,7 @@ def test_at_the_deadline_the_better_rejected_candidate_goes_before_a_weaker_pote
     # without the switch the robot is still verifying the decoy (best score 5) when the deadline
     # is due, and the budget runs out before the last resort reaches the goal
     assert len(off) == BUDGET and off[-1][0].action != Action.STOP and off_dist[-1] > 1.0
-    k = next(i for i, (d, _) in enumerate(on) if "potential candidate weaker" in d.reason)
+    k = next(i for i, (d, _) in enumerate(on) if d.has(Context.DEADLINE_OVER_WEAKER))
     # the same run up to that step, and there the run without it verifies the weaker candidate
     assert [d.action for d, _ in on[:k]] == [d.action for d, _ in off[:k]]
     d_off, rec_off = off[k]
@@ -49,12 +50,12 @@ def test_at_the_deadline_the_better_rejected_candidate_goes_before_a_weaker_pote
     live = {c.id: c for c in rec_off.candidates}
     assert live[d_off.candidate.id].state == "potential" and live[d_off.candidate.id].best_score == 5.0
     assert max(c.best_score for c in rec_off.candidates if c.state == "rejected") == 20.0
-    # with it: the last resort to the goal's rejected candidate, said in the reason, from then on
-    d_on = on[k][0]
-    left = BUDGET - k
-    assert d_on.mode == Mode.LAST_RESORT and d_on.reason.startswith(
-        f"{left} steps of the budget left, potential candidate weaker (best score 5.0): "
-        "last resort (rejected candidate, best score 20.0)")
+    # with it: the last resort to the goal's rejected candidate, said in the record, from then on
+    d_on, rec_on = on[k]
+    facts = {n.context: dict(n.facts) for n in d_on.context}
+    assert d_on.mode == Mode.LAST_RESORT and rec_on.context == ("deadline_over_weaker", "last_resort")
+    assert facts == {Context.DEADLINE_OVER_WEAKER: {"steps_left": BUDGET - k, "score": 5.0},
+                     Context.LAST_RESORT: {"score": 20.0}}
     assert all(d.mode in (Mode.LAST_RESORT, Mode.STOPPED) for d, _ in on[k:])
     # ... and it stops at the goal within the budget
     last, rec = on[-1]
@@ -68,6 +69,6 @@ def test_it_does_not_act_before_the_deadline():
     on, _ = run(True, budget=1000, window=200)
     off, _ = run(False, budget=1000, window=200)
     assert [d.action for d, _ in on] == [d.action for d, _ in off]
-    assert [d.reason for d, _ in on] == [d.reason for d, _ in off]
+    assert [(d.event, d.context) for d, _ in on] == [(d.event, d.context) for d, _ in off]
     assert on[-1][0].mode == Mode.STOPPED and len(on) < 300
-    assert not any("steps of the budget left" in d.reason for d, _ in on)
+    assert not any(d.has(Context.DEADLINE) or d.has(Context.DEADLINE_OVER_WEAKER) for d, _ in on)

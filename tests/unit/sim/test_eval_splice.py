@@ -106,22 +106,6 @@ def test_the_splice_and_the_agent_count_the_same_run():
         assert first_oscillation([int(a) for a in actions], 5) == fired
 
 
-def test_the_view_check_splices_only_where_the_base_stopped_with_the_goal_hidden():
-    from sim.evaluation.splice import ActsAt
-
-    hidden = rec("h", [F, L, S], "stopped")
-    hidden["modiin"]["final_reason"] = "within stop radius, facing the goal (close-range verification off; 0 of 40 core points in the frame seen, hidden)"
-    seen = rec("v", [F, F, S], "stopped", success=True, home=2)
-    seen["modiin"]["final_reason"] = "within stop radius, facing the goal (close-range verification off; 38 of 40 core points in the frame seen)"
-    at = ActsAt(hidden_stop=True)
-    assert at.untouched(hidden) == 2 and at.untouched(seen) is None
-    assert missing_reruns([hidden, seen], [], at) == ["h"]
-    out = splice([hidden, seen], [rec("h", [F, L, F, F, S], "stopped", success=True)], at)
-    assert out[0]["success"] and out[1] is seen
-    with pytest.raises(ValueError, match="did not find the goal hidden"):
-        splice([hidden, seen], [rec("v", [F, F, F, S], "stopped", home=2)], at)
-
-
 def test_the_deadline_splices_the_episodes_that_went_past_its_first_step(tmp_path):
     from sim.evaluation.splice import ActsAt
 

@@ -22,8 +22,8 @@ def test_variants_map_to_config():
     assert c.reid.score == "count" and c.segmentation.source == "crop" and c.reid.num_threads == 2
     c = build_config(ns(modiin_reid="oracle", modiin_loc="oracle"))
     assert c.policy.reid_source == "oracle" and c.policy.localisation_source == "oracle"
-    c = build_config(ns(modiin_set=["policy.verify=false", "reid.obs_max_keypoints=512"], modiin_tau=3.5))
-    assert c.policy.verify is False and c.reid.obs_max_keypoints == 512 and c.reid.tau == 3.5
+    c = build_config(ns(modiin_set=["policy.last_resort=false", "reid.obs_max_keypoints=512"], modiin_tau=3.5))
+    assert c.policy.last_resort is False and c.reid.obs_max_keypoints == 512 and c.reid.tau == 3.5
     with pytest.raises(ValueError):
         build_config(ns(modiin_set=["nosuch.key=1"]))
     with pytest.raises(ValueError):
@@ -48,6 +48,7 @@ class Rec:
         self.goal_detected = detected
         self.goal_points_xyz = np.asarray(pts, np.float32).reshape(-1, 3)
         self.mode, self.reason, self.planner_error, self.timings_ms = mode, "", None, {"total": 1.0}
+        self.event, self.context = "frontier", ()
         self.reid_score = 100.0 if detected else (1.0 if full_matcher else 0.0)
         self.reid_full_matcher = full_matcher
         self.reid_gate_score = 90.0 if full_matcher else 3.0
@@ -105,15 +106,16 @@ def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
 
 
 def test_attribution_records_the_step_of_the_second_look():
-    from agent.modes import SECOND_LOOK
-
     a = attribution([(0, False, [])] * 3)
     assert a.finish({"success": False})["modiin"]["second_look_step"] is None
     for k in (3, 4):
         rec = Rec(False, [], mode="verify")
-        rec.reason = f"{SECOND_LOOK}: 2 of the 16 frames kept added points; verify: going to the ring"
+        rec.event, rec.context = "verify_approach", ("side_step", "second_look")  # read from the context, not the prose
+        rec.reason = "side-step out of turning to and fro; exhausted, second look ..."
         a.on_step(type("O", (), {"step": k})(), None, rec)
-    assert a.finish({"success": False})["modiin"]["second_look_step"] == 3
+    out = a.finish({"success": False})["modiin"]
+    assert out["second_look_step"] == 3 and out["final_event"] == "verify_approach"
+    assert out["final_context"] == ["side_step", "second_look"]
 
 
 def test_distribution_and_table():
