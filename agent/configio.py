@@ -1,6 +1,6 @@
 """Strict loading of (nested) frozen config dataclasses from YAML or dicts.
 
-Every module owns a config dataclass with defaults (DESIGN section 7); a
+Every module owns a config dataclass with defaults (docs/architecture.md section 7); a
 deployment YAML overrides some of the fields. Unknown keys are an error, so a
 typo in a deployment file cannot silently fall back to a default.
 """

@@ -1,4 +1,4 @@
-"""Frontier-based exploration (Yamauchi 1997; DESIGN section 2.1).
+"""Frontier-based exploration (Yamauchi 1997; docs/architecture.md section 2.1).
 
 A frontier cell is an explored, free cell with an unexplored 4-neighbour. Frontier cells
 are grouped into 8-connected clusters; clusters smaller than ``min_cluster_cells`` are

@@ -1,5 +1,5 @@
 """Goal localisation: matched keypoints on the goal instance -> 3D goal points -> goal layer
-(DESIGN section 2.3; Krantz et al. 2023, section 3.3).
+(docs/architecture.md section 2.3; Krantz et al. 2023, section 3.3).
 
 Each detection adds points: the matched goal-image keypoints that fall inside the goal
 mask select their egocentric partners, which are lifted to 3D with the depth image and the

@@ -1,4 +1,4 @@
-"""The observe-act-apply loop, written once (DESIGN section 4), with step sinks.
+"""The observe-act-apply loop, written once (docs/architecture.md section 4), with step sinks.
 
     obs = backend.reset(); agent.reset(obs.goal_image)
     while not should_stop():

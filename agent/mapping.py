@@ -1,4 +1,4 @@
-"""Top-down occupancy map built from depth by inverse perspective projection (DESIGN section 2.1).
+"""Top-down occupancy map built from depth by inverse perspective projection (docs/architecture.md section 2.1).
 
 The map is a 2D grid of square cells (5 cm by default) in the run frame (start-relative,
 ``agent.types``). Grid index (i, j): row i grows with y, column j with x (``ij_grid``).

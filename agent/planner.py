@@ -1,4 +1,4 @@
-"""Local navigation by fast marching (DESIGN section 2.4).
+"""Local navigation by fast marching (docs/architecture.md section 2.4).
 
 One geodesic distance field per step is computed *from the agent* with scikit-fmm over the
 traversible map (obstacles and collision marks dilated by the robot radius; unexplored

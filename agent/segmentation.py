@@ -1,4 +1,4 @@
-"""Masks of the goal instance in the goal image (DESIGN section 2.3).
+"""Masks of the goal instance in the goal image (docs/architecture.md section 2.3).
 
 Sources:
 

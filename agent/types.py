@@ -1,4 +1,4 @@
-"""The shared vocabulary of the project (DESIGN section 4).
+"""The shared vocabulary of the project (docs/architecture.md section 4).
 
 Backends (sim/, robot/) import only this module from agent/. Everything here is
 plain data: frozen, slotted dataclasses and one Protocol per role.
@@ -22,7 +22,7 @@ from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-# --- task constants (DESIGN section 1) -------------------------------------
+# --- task constants (docs/architecture.md section 1) -------------------------------------
 
 FORWARD_STEP_M = 0.25
 TURN_ANGLE_DEG = 30.0
@@ -137,7 +137,7 @@ SIM_INTRINSICS = Intrinsics.from_hfov(CAMERA_WIDTH_PX, CAMERA_HEIGHT_PX, CAMERA_
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Observation:
-    """What the agent receives each step (DESIGN section 1).
+    """What the agent receives each step (docs/architecture.md section 1).
 
     rgb:        (H, W, 3) uint8, R,G,B order, egocentric camera.
     depth_m:    (H, W) float32 metres along the optical axis, aligned with ``rgb``;
@@ -187,7 +187,7 @@ class BackendError(RuntimeError):
 
 @runtime_checkable
 class Backend(Protocol):
-    """A robot, real or simulated (DESIGN section 4).
+    """A robot, real or simulated (docs/architecture.md section 4).
 
     reset() starts a run and returns the first observation (pose (0, 0, 0)).
     observe() returns the current observation without acting.

@@ -5,7 +5,7 @@ the console executes one run at a time, so no two agents use it at once. ``warm_
 it and runs one extraction and match ahead of the first run, so an operator's first upload
 does not pay for loading weights and torch's one-off set-up.
 
-The re-ID threshold tau of a deployment (DESIGN section 5: thresholds do not transfer
+The re-ID threshold tau of a deployment (docs/architecture.md section 5: thresholds do not transfer
 between cameras; the reference code used 24.5 in simulation and 6.0 on the robot):
 
 1. ``reid.tau`` set in the deployment YAML, else

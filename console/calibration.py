@@ -1,6 +1,6 @@
 """A deployment's re-ID threshold tau from the operator's own photos.
 
-The threshold does not transfer between cameras and homes (DESIGN section 5). The paper
+The threshold does not transfer between cameras and homes (docs/architecture.md section 5). The paper
 chooses tau by the maximal F-measure over goal-image pairs (same instance vs different
 instance); here the pairs are the operator's photos: several photos of each of a few
 objects of their own home, grouped by object. Every pair is scored with the deployment's

@@ -47,7 +47,7 @@ class ResolvedRun:
 
     @property
     def max_steps(self) -> int:
-        """The step budget (DESIGN: 1000)."""
+        """The step budget (docs/architecture.md section 1: 1000)."""
         return int(self.spec.max_steps)
 
 
@@ -98,7 +98,7 @@ class BackendProvider(Protocol):
 
 @dataclass(frozen=True, slots=True, eq=False)
 class StepRecord:
-    """An immutable account of one step, published after ``backend.apply`` (DESIGN section 4).
+    """An immutable account of one step, published after ``backend.apply`` (docs/architecture.md section 4).
 
     rgb / depth_m / intrinsics: the observation the agent acted on (start-relative pose).
     record: the agent's own account (None if the agent offers none).

@@ -1,4 +1,4 @@
-"""``StretchBackend``: the agent's ``Backend`` on a Hello Robot Stretch (DESIGN sections 4, 6).
+"""``StretchBackend``: the agent's ``Backend`` on a Hello Robot Stretch (docs/architecture.md sections 4, 6).
 
 The same loop that runs in simulation runs here::
 
@@ -389,7 +389,7 @@ class StretchBackend:
         """The latest observation provably captured after the last acknowledged step.
 
         The bridge stamps an observation with the last handled step only when it sends it,
-        after grabbing its images and reading its pose (DESIGN section 6): the observation
+        after grabbing its images and reading its pose (docs/architecture.md section 6): the observation
         that echoes step N can hold images from before N's motion ended. Its publishing loop
         is sequential, so an observation received after that one was grabbed after it was
         sent, hence after N's acknowledgement (``StretchConfig.observations_after_echo``)."""

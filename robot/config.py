@@ -18,7 +18,7 @@ class StretchConfig:
     """Address, timeouts and tolerances of the bridge link.
 
     host: the robot's address (the bridge binds; we connect).
-    state_silence_s: more than this without a state message is a disconnect (DESIGN 6).
+    state_silence_s: more than this without a state message is a disconnect (docs/architecture.md section 6).
     connect_timeout_s: wait this long for the first state and observation messages.
     ack_timeout_s: wait this long for the echo of a base goal. On the robot the echo comes
         only after the base has arrived, so this must cover the whole motion (a 0.25 m
@@ -43,7 +43,7 @@ class StretchConfig:
         unsafe rule, kept for the protocol benchmark).
     head_pan_rad / head_tilt_rad: head pose sent after the navigation posture; tilt is
         positive looking down (``Observation.camera_tilt_rad``; the bridge's sign is the
-        opposite). 0 = level, the simulator's camera (DESIGN section 1).
+        opposite). 0 = level, the simulator's camera (docs/architecture.md section 1).
     head_tolerance_rad / head_timeout_s: the measured camera tilt (from ``camera_pose``)
         must reach the requested tilt within this tolerance and time.
     send_posture: send the navigation posture and head pose in ``reset()``.

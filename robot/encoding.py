@@ -1,4 +1,4 @@
-"""Image encodings and camera geometry of stretch_ai's observation messages (DESIGN section 6).
+"""Image encodings and camera geometry of stretch_ai's observation messages (docs/architecture.md section 6).
 
 * ``rgb``: 1-D uint8 array of JPEG bytes. The robot hands its rgb8 camera array straight
   to ``cv2.imencode`` (which assumes B,G,R), so ``cv2.imdecode`` gives back the original

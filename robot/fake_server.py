@@ -1,4 +1,4 @@
-"""A fake Stretch that speaks stretch_ai's ZeroMQ bridge protocol (DESIGN section 6).
+"""A fake Stretch that speaks stretch_ai's ZeroMQ bridge protocol (docs/architecture.md section 6).
 
 It binds the bridge's three ports, publishes pickled observation dicts (~10 Hz, JPEG RGB
 and JPEG2000 millimetre depth of the portrait head camera, ``camera_K``,

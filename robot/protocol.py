@@ -1,4 +1,4 @@
-"""The stretch_ai ZeroMQ bridge's messages, as plain data (DESIGN section 6).
+"""The stretch_ai ZeroMQ bridge's messages, as plain data (docs/architecture.md section 6).
 
 The robot binds and publishes full observations (port 4401, ~10 Hz) and state
 (4403, ~30 Hz) and subscribes to actions (4402). Every message is one pickled dict.
@@ -59,7 +59,7 @@ def head_message(pan_rad: float, tilt_rad: float, step: int) -> dict[str, Any]:
 
 
 def discrete_goal(base_world: Pose2D, action: Action) -> Pose2D:
-    """The absolute base goal of a discrete action taken at ``base_world`` (DESIGN section 1:
+    """The absolute base goal of a discrete action taken at ``base_world`` (docs/architecture.md section 1:
     forward 0.25 m, turns of 30 deg). STOP has no goal."""
     if action == Action.MOVE_FORWARD:
         local = Pose2D(FORWARD_STEP_M, 0.0, 0.0)
@@ -160,7 +160,7 @@ class RawObservation:
     camera_K: (3, 3) float64 pixels. T_world_camera: (4, 4) float64 (map frame).
     base_world: from ``gps`` + ``compass``. The bridge reads it just after grabbing the
         images, and ``step`` only when it sends the message, so an observation that echoes
-        step N may hold images from before step N's motion ended (DESIGN section 6).
+        step N may hold images from before step N's motion ended (docs/architecture.md section 6).
     seq: the link's count of observations received so far (1 for the first; 0 until the
         link numbers it). A higher ``seq`` is a later message from the robot.
     """

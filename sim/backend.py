@@ -1,4 +1,4 @@
-"""``SimBackend``: the simulator behind ``agent.types.Backend`` (DESIGN section 4).
+"""``SimBackend``: the simulator behind ``agent.types.Backend`` (docs/architecture.md section 4).
 
 Built from a ``SimWorld`` and either an ``Episode`` (with its goal image) or a
 free world start pose plus any goal image (an uploaded photo). In the second

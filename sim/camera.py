@@ -1,4 +1,4 @@
-"""Pinhole cameras for PyBullet's TinyRenderer (DESIGN sections 1 and 8).
+"""Pinhole cameras for PyBullet's TinyRenderer (docs/architecture.md sections 1 and 8).
 
 PyBullet's ``computeProjectionMatrixFOV`` takes the *vertical* field of view; our
 specs hold the horizontal one (as Habitat and the Stretch config do) and convert.

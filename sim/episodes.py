@@ -54,7 +54,7 @@ def r4(v: float) -> float:
 
 @dataclass(frozen=True, slots=True)
 class Episode:
-    """One episode (DESIGN section 1).
+    """One episode (docs/architecture.md section 1).
 
     start_pose_world: the robot's start in the home's world frame. viewpoints_xy_m: world xy of the goal viewpoints.
     geodesic_distance_m: fast-marching shortest path from the start to the nearest viewpoint.

@@ -343,7 +343,7 @@ def bathtub(rng: np.random.Generator) -> list[LocalPart]:
 
 
 def wall_panel(w: float, h: float) -> list[LocalPart]:
-    """Dark tiles behind a toilet: contrasting surroundings for a light fixture (DESIGN section 8)."""
+    """Dark tiles behind a toilet: contrasting surroundings for a light fixture (docs/architecture.md section 8)."""
     return [_box(0, 0, 0, w, 0.02, h, "panel")]
 
 

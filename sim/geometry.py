@@ -1,6 +1,6 @@
 """Planar collision geometry of a home, without PyBullet.
 
-The robot is a vertical cylinder (radius 0.17 m, height 1.41 m, DESIGN section 1)
+The robot is a vertical cylinder (radius 0.17 m, height 1.41 m, docs/architecture.md section 1)
 that only translates in the floor plane, so a collision test against vertical
 prisms reduces exactly to a 2D test: the disc of the robot's radius against the
 footprints of every solid part whose height range overlaps the robot's.

@@ -1,4 +1,4 @@
-"""Goal images: 512x512 renders of one instance as the main subject (DESIGN sections 1 and 8).
+"""Goal images: 512x512 renders of one instance as the main subject (docs/architecture.md sections 1 and 8).
 
 A goal camera is sampled like a person photographing the object: eye height
 0.8-1.7 m, 1-3 m from the object (more for large ones), mostly from its front

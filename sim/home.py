@@ -1,4 +1,4 @@
-"""The data spec of a procedural home: pure data, no PyBullet (DESIGN section 8).
+"""The data spec of a procedural home: pure data, no PyBullet (docs/architecture.md section 8).
 
 ``sim.scene_gen.generate_home(seed)`` produces a ``HomeSpec``; ``sim.world.SimWorld``
 builds it in PyBullet. World frame: z up, metres, the floor at z = 0.

@@ -1,6 +1,6 @@
 """Shortest action sequences on the robot's discrete motion lattice (A*).
 
-The robot moves in 0.25 m steps along 12 headings (30 deg turns, DESIGN section 1),
+The robot moves in 0.25 m steps along 12 headings (30 deg turns, docs/architecture.md section 1),
 so the positions it can reach form a lattice anchored at its start pose. A
 continuous shortest path (the fast-marching geodesic) is a lower bound that the
 lattice can only approximate; this search finds the action sequence with the

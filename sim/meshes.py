@@ -1,7 +1,7 @@
 """Triangle meshes with world-scaled texture coordinates for furniture parts.
 
 PyBullet's box primitive stretches one texture over each face whatever its size
-(DESIGN section 8), so a 2 m couch and a 0.4 m stool would show the same
+(docs/architecture.md section 8), so a 2 m couch and a 0.4 m stool would show the same
 pattern at different scales. These builders emit explicit meshes whose UVs are
 the surface coordinates in metres divided by the texture's tile size, so a
 texture has the same physical scale on every object. PyBullet's TinyRenderer

@@ -1,4 +1,4 @@
-"""The task's metrics, exactly as DESIGN section 1 defines them.
+"""The task's metrics, exactly as docs/architecture.md section 1 defines them.
 
 * success: the agent issued STOP within 0.1 m (inclusive) of a goal viewpoint.
 * SPL: success * shortest / max(path taken, shortest), where shortest is the

@@ -1,6 +1,6 @@
 """Ground-truth navigation quantities: goal viewpoints and geodesic distances.
 
-* Viewpoints (DESIGN section 1): navigable positions within 1.0 m of the goal
+* Viewpoints (docs/architecture.md section 1): navigable positions within 1.0 m of the goal
   instance from which it is visible. Candidates lie on a 0.1 m lattice (every
   other cell of the 0.05 m navigable grid), so the union of the 0.1 m success
   discs around them covers the whole viewpoint region without gaps. Visibility:

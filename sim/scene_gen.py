@@ -6,7 +6,7 @@ with per-instance textures from per-category families, same-category distractors
 (dining chairs, several bedrooms and bathrooms, plants, TVs) that sometimes come
 from one style and look alike (a set of dining chairs always does), and clutter: tables,
 shelves, counters, rugs, lamps, framed pictures with natural images (1-3 per room).
-Toilets sit on dark tiles in front of a dark panel (DESIGN section 8).
+Toilets sit on dark tiles in front of a dark panel (docs/architecture.md section 8).
 
 Deterministic: the same seed gives the same spec on every run and machine
 (``numpy.random.default_rng`` and plain float arithmetic only).

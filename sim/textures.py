@@ -1,4 +1,4 @@
-"""Procedural, deterministic, seamlessly tiling textures (DESIGN section 8).
+"""Procedural, deterministic, seamlessly tiling textures (docs/architecture.md section 8).
 
 Texture decides re-identification difficulty: flat colours make keypoint re-ID
 fall to category level, so every instance gets its own texture drawn from a
@@ -242,7 +242,7 @@ def _planks(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
 def _tiles(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
     s = TEX_PX * 2
     n = int(rng.integers(3, 8))
-    # dark tiles make light fixtures stand out (DESIGN section 8)
+    # dark tiles make light fixtures stand out (docs/architecture.md section 8)
     dark = m.family == "darktiles" or rng.uniform() < 0.6
     base = _hsv(rng.uniform(), rng.uniform(0.1, 0.5), rng.uniform(0.2, 0.45) if dark else rng.uniform(0.6, 0.9))
     img = np.ones((s, s, 3), np.float32) * base
@@ -288,7 +288,7 @@ def _leaves(rng: np.random.Generator, m: Material, srng: np.random.Generator) ->
 
 
 def _ceramic(rng: np.random.Generator, m: Material, srng: np.random.Generator) -> np.ndarray:
-    # Tinted, shaded, veined ceramic: a pure white fixture is nearly unmatchable (DESIGN section 8).
+    # Tinted, shaded, veined ceramic: a pure white fixture is nearly unmatchable (docs/architecture.md section 8).
     s = TEX_PX
     base = _hsv(srng.uniform(), srng.uniform(0.15, 0.45), srng.uniform(0.7, 0.9))
     img = _shade(np.ones((s, s, 3), np.float32) * base, 0.15 * _noise(rng, 4) + 0.05 * _noise(rng, 30))

@@ -6,7 +6,7 @@ Public contract (CONTRIBUTING.md):
 * ``.render(pose_world, camera=SIM_CAMERA) -> Render(rgb, depth_m, instance_ids)``: the
   robot's camera at a floor pose (camera height and pitch from the spec).
   ``.render_view(eye_xyz, yaw, pitch, camera)`` renders any camera (goal images).
-* ``.move(pose_world, action) -> (pose_world, moved)``: one discrete action of DESIGN
+* ``.move(pose_world, action) -> (pose_world, moved)``: one discrete action of docs/architecture.md
   section 1 (forward 0.25 m, turns 30 deg). A forward move whose swept path collides
   leaves the pose unchanged (no sliding); ``moved`` is False then and for STOP.
 * ``.collides(x_m, y_m)``: the robot cylinder (r 0.17 m, h 1.41 m) at that position

@@ -1,4 +1,4 @@
-"""Instance re-identification by keypoint matching (DESIGN section 2.2).
+"""Instance re-identification by keypoint matching (docs/architecture.md section 2.2).
 
 Matchers: ``xfeat_lighterglue`` (default), ``aliked_lightglue`` (optional extra), ``sift``.
 Score functions: ``conf`` (Keypoint-Conf) and ``count`` (Keypoint-Match).

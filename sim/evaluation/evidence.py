@@ -38,7 +38,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-FRAME_PX = 360 * 640  # the egocentric frame (DESIGN 1)
+FRAME_PX = 360 * 640  # the egocentric frame (docs/architecture.md section 1)
 IN_VIEW_PX = 2300  # 1% of the frame: the eval's "goal seen" (--modiin-seen-px)
 OUT_OF_VIEW_PX = 100  # below it a detection cannot be the goal (modiin.py's det_unseen)
 

@@ -1,4 +1,4 @@
-"""Evaluation across machines on Ray (``imgnav eval --ray ADDRESS``, DESIGN section 9).
+"""Evaluation across machines on Ray (``imgnav eval --ray ADDRESS``, docs/architecture.md section 9).
 
 The work unit is the same as for local worker processes: one home's episodes
 (``runner.run_scene`` builds the home once). Each unit is a Ray task with

@@ -1,4 +1,4 @@
-"""Pair scoring of ``imgnav calibrate --ray ADDRESS`` as Ray tasks (DESIGN section 9).
+"""Pair scoring of ``imgnav calibrate --ray ADDRESS`` as Ray tasks (docs/architecture.md section 9).
 
 Matching the goal-image pairs is the cost of calibration (12,500 pairs at ~0.1 s each on
 this machine's 2 cores, against 1,000 extractions at ~0.04 s). The pairs, sorted, are cut

@@ -3,7 +3,7 @@
 The fake robot speaks the stretch_ai bridge protocol on free loopback ports; the console's
 Stretch backend choice drives it with the real Mod-IIN agent (``stretch`` deployment).
 Runs on a real robot are unscored, so success is checked against the fake's ground truth:
-the robot's final pose in the home must be within 0.1 m of a goal viewpoint (DESIGN 1).
+the robot's final pose in the home must be within 0.1 m of a goal viewpoint (docs/architecture.md section 1).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The task's metrics on hand-made cases (DESIGN section 1)."""
+"""The task's metrics on hand-made cases (docs/architecture.md section 1)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Pose integration and collision of the simulated robot (DESIGN section 1)."""
+"""Pose integration and collision of the simulated robot (docs/architecture.md section 1)."""
 
 from __future__ import annotations
 
