@@ -71,10 +71,12 @@ class CandidateNavigator:
         cell it began on)."""
         pose = scene.obs.pose
         before = st.motion.detour
-        action, motion = safe_action(plan, pose, field, scene.grid, self.planner, st.motion,
-                                     self.config.detour_after_turns)
+        action, motion = safe_action(
+            plan, pose, field, scene.grid, self.planner, st.motion, self.config.detour_after_turns
+        )
         side = motion.detour is not None or (
-            before is not None and action == Action.MOVE_FORWARD and before[:2] == move_key(scene.grid, pose)[:2])
+            before is not None and action == Action.MOVE_FORWARD and before[:2] == move_key(scene.grid, pose)[:2]
+        )
         return action, replace(st, motion=replace(motion, side_step=side))
 
     # --- giving a candidate up -----------------------------------------------------------
@@ -86,11 +88,15 @@ class CandidateNavigator:
         # A candidate that never scored tau was only potential: reject its sub-tau evidence, not
         # a later detection there (a rejected true goal would otherwise be lost for good)
         soft = self.tau is not None and cand.max_score < self.tau
-        scene.grid.blacklist_cells(cand.cells_ij, self.config.reject_radius_m,
-                                   layer="potential_blacklist" if soft else "blacklist")
+        scene.grid.blacklist_cells(
+            cand.cells_ij, self.config.reject_radius_m, layer="potential_blacklist" if soft else "blacklist"
+        )
         a = st.approach
-        return replace(st, approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0,
-                                            collisions_forgiven=0), verify=None)
+        return replace(
+            st,
+            approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0, collisions_forgiven=0),
+            verify=None,
+        )
 
     def forgive_before_reject(self, scene: Scene, st: PolicyState) -> tuple[bool, PolicyState]:
         """Before a candidate is given up as unreachable: drop the collision marks (as a rescan
@@ -103,7 +109,9 @@ class CandidateNavigator:
             return False, st
         scene.grid.forgive_collisions()
         log.info("goal candidate unreachable: collision marks dropped before giving it up")
-        return True, replace(st, approach=replace(a, unreachable_steps=0, collisions_forgiven=a.collisions_forgiven + 1))
+        return True, replace(
+            st, approach=replace(a, unreachable_steps=0, collisions_forgiven=a.collisions_forgiven + 1)
+        )
 
     # --- the deadline and the last resort --------------------------------------------------
 
@@ -137,8 +145,13 @@ class CandidateNavigator:
         need = math.ceil(d / FORWARD_STEP_M * pc.deadline_path_factor) + pc.deadline_margin_steps
         if left > need:
             return False, st
-        log.info("%d steps left, about %d needed to reach rejected candidate %d (%.1f m): the last resort now",
-                 left, need, cid, d)
+        log.info(
+            "%d steps left, about %d needed to reach rejected candidate %d (%.1f m): the last resort now",
+            left,
+            need,
+            cid,
+            d,
+        )
         return True, replace(st, last_resort=replace(lr, deadline=True))
 
     def last_resort(self, scene: Scene, st: PolicyState) -> Outcome:
@@ -155,8 +168,11 @@ class CandidateNavigator:
                 if cid is None:
                     return None, st
                 st = replace(st, last_resort=replace(lr, candidate_id=cid, tried=lr.tried | {cid}))
-                log.info("nothing left to explore: trying rejected candidate %d (best score %.1f) as the last resort",
-                         cid, memory.best_score_of(cid))
+                log.info(
+                    "nothing left to explore: trying rejected candidate %d (best score %.1f) as the last resort",
+                    cid,
+                    memory.best_score_of(cid),
+                )
             cand = memory.rejected_cluster(cid, grid.xy_to_ij)
             grid.set_goal_cells(cand.cells_ij)
             decision, st = self.approach(scene, st, cand)
@@ -179,7 +195,8 @@ class CandidateNavigator:
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal).
         near_enough = (st.approach.region_unreachable or blocked_here(grid, st.motion, pose)) and region_within(
-            stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)[agent_ij]
+            stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m
+        )[agent_ij]
         if region[agent_ij] or near_enough:
             return self._at_candidate(scene, cand), st
         st = replace(st, verify=None)
@@ -204,8 +221,14 @@ class CandidateNavigator:
                     return self.approach(scene, st, cand)
                 return None, self.reject(scene, st, cand, f"unreachable for {a.unreachable_steps} steps")
             # keep looking around: the map may open a way (a new view, a cleared collision)
-            return Decision(Action.TURN_LEFT, Mode.APPROACH, Event.GOAL_NOT_REACHABLE_YET, target_kind="goal",
-                            candidate=cand, planner_error=f"{exc.reason}: {exc}"), st
+            return Decision(
+                Action.TURN_LEFT,
+                Mode.APPROACH,
+                Event.GOAL_NOT_REACHABLE_YET,
+                target_kind="goal",
+                candidate=cand,
+                planner_error=f"{exc.reason}: {exc}",
+            ), st
         # No progress towards the candidate for too long (blocked by what the map does not
         # show, or oscillating): give it up rather than spend the budget on it.
         a = a.after_plan(cand.centroid_xy_m, plan.distance_m)
@@ -223,8 +246,13 @@ class CandidateNavigator:
         bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
         err = wrap_angle(bearing - pose.yaw_rad)
         if abs(err) > math.radians(self.config.facing_tolerance_deg):
-            return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.APPROACH, Event.FACE_GOAL,
-                            target_kind="goal", candidate=cand)
+            return Decision(
+                Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT,
+                Mode.APPROACH,
+                Event.FACE_GOAL,
+                target_kind="goal",
+                candidate=cand,
+            )
         return Decision(Action.STOP, Mode.STOPPED, Event.STOP_AT_GOAL, target_kind="goal", candidate=cand)
 
     # --- verify by approach ---------------------------------------------------------------
@@ -240,11 +268,15 @@ class CandidateNavigator:
         cl = cand.cluster
         top_m = float(np.quantile(cl.points_xyz[:, 2], 0.9)) if len(cl.points_xyz) else 0.0
         half_vfov = math.atan2(0.5 * obs.intrinsics.height_px, obs.intrinsics.fy) - obs.camera_tilt_rad
-        inner = (max(0.0, (obs.camera_height_m - top_m) / math.tan(half_vfov)) + pc.verify_min_margin_m
-                 if half_vfov > 0 else 0.0)
+        inner = (
+            max(0.0, (obs.camera_height_m - top_m) / math.tan(half_vfov)) + pc.verify_min_margin_m
+            if half_vfov > 0
+            else 0.0
+        )
         outer = max(pc.verify_distance_m, inner + 0.5)
-        ring = (region_within(grid.layers.goal, outer, grid.resolution_m)
-                & ~region_within(grid.layers.goal, inner, grid.resolution_m))
+        ring = region_within(grid.layers.goal, outer, grid.resolution_m) & ~region_within(
+            grid.layers.goal, inner, grid.resolution_m
+        )
         agent_ij = grid.cell_of(pose)
         v = st.verify
         if v is None or v.candidate_id != cl.id:
@@ -264,8 +296,14 @@ class CandidateNavigator:
                 if forgiven:
                     return self.verify_by_approach(scene, st, cand)
                 return None, self.reject(scene, st, cl, f"verify ring unreachable for {a.unreachable_steps} steps")
-            return Decision(Action.TURN_LEFT, Mode.VERIFY, Event.VERIFY_RING_NOT_REACHABLE_YET, target_kind="goal",
-                            candidate=cl, planner_error=f"{exc.reason}: {exc}"), st
+            return Decision(
+                Action.TURN_LEFT,
+                Mode.VERIFY,
+                Event.VERIFY_RING_NOT_REACHABLE_YET,
+                target_kind="goal",
+                candidate=cl,
+                planner_error=f"{exc.reason}: {exc}",
+            ), st
         a = a.after_plan(cl.centroid_xy_m, plan.distance_m)
         st = replace(st, approach=a)
         if a.stall_steps > pc.approach_patience_steps:
@@ -273,8 +311,9 @@ class CandidateNavigator:
         action, st = self.steer(scene, st, plan, field)
         return Decision(action, Mode.VERIFY, Event.VERIFY_APPROACH, plan=plan, target_kind="goal", candidate=cl), st
 
-    def _look_from_ring(self, scene: Scene, st: PolicyState, cand: GoalCandidate, ring: np.ndarray,
-                        v: VerifyState) -> Outcome:
+    def _look_from_ring(
+        self, scene: Scene, st: PolicyState, cand: GoalCandidate, ring: np.ndarray, v: VerifyState
+    ) -> Outcome:
         """On the verify ring: face the candidate, then look (a new viewpoint each look)."""
         pc, grid, obs = self.config, scene.grid, scene.obs
         pose = obs.pose
@@ -282,11 +321,20 @@ class CandidateNavigator:
         bearing = math.atan2(cl.centroid_xy_m[1] - pose.y_m, cl.centroid_xy_m[0] - pose.x_m)
         err = wrap_angle(bearing - pose.yaw_rad)
         if abs(err) > math.radians(pc.facing_tolerance_deg):
-            return Decision(Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT, Mode.VERIFY, Event.VERIFY_FACE,
-                            target_kind="goal", candidate=cl), replace(st, verify=v)
+            return Decision(
+                Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT,
+                Mode.VERIFY,
+                Event.VERIFY_FACE,
+                target_kind="goal",
+                candidate=cl,
+            ), replace(st, verify=v)
         look = next((w for w in cand.views if w.step == obs.step), None)
-        if (pc.verify_ring_tau_ratio < 1.0 and self.tau is not None and look is not None
-                and look.score >= pc.verify_ring_tau_ratio * self.tau):
+        if (
+            pc.verify_ring_tau_ratio < 1.0
+            and self.tau is not None
+            and look is not None
+            and look.score >= pc.verify_ring_tau_ratio * self.tau
+        ):
             st = replace(st, ring_confirmed=st.ring_confirmed | {obs.step}, verify=None)
             decision, st = self.approach(scene, st, cl)
             return (None if decision is None else decision.within(Context.RING_CONFIRMED, score=look.score)), st
@@ -302,7 +350,13 @@ class CandidateNavigator:
         if grid.in_bounds(a_ij[None])[0] and ring[a_ij[0], a_ij[1]] and not blocked_here(grid, st.motion, pose):
             field = self.planner.distance_field(grid, pose)
             if self.planner.line_free(grid, field, here, ahead):
-                return Decision(Action.MOVE_FORWARD, Mode.VERIFY, Event.VERIFY_STEP_NEARER, look_no,
-                                target_kind="goal", candidate=cl), st
+                return Decision(
+                    Action.MOVE_FORWARD,
+                    Mode.VERIFY,
+                    Event.VERIFY_STEP_NEARER,
+                    look_no,
+                    target_kind="goal",
+                    candidate=cl,
+                ), st
         turn = Action.TURN_LEFT if v.views % 2 == 0 else Action.TURN_RIGHT
         return Decision(turn, Mode.VERIFY, Event.VERIFY_LOOK, look_no, target_kind="goal", candidate=cl), st

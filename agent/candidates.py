@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
@@ -54,8 +54,9 @@ class GoalCandidate:
         return max((v.score for v in self.views if v.distance_m <= distance_m), default=0.0)
 
 
-def evaluate(cluster: Candidate, localiser: GoalLocaliser, tau: float,
-             confirmed_steps: frozenset[int] = frozenset()) -> GoalCandidate:
+def evaluate(
+    cluster: Candidate, localiser: GoalLocaliser, tau: float, confirmed_steps: frozenset[int] = frozenset()
+) -> GoalCandidate:
     """The candidate's state from its views: a detection (score >= tau) confirms it, and so do
     the views in ``confirmed_steps`` whatever their score (looks from the verify ring)."""
     views = tuple(v for v in (localiser.view(f) for f in cluster.frames) if v is not None)
@@ -74,8 +75,13 @@ class CandidateMemory:
         # id -> (cluster, its cells' centres in metres): map cells move when the map grows
         self._clusters: dict[int, tuple[Candidate, np.ndarray]] = {}
 
-    def reject(self, cand: GoalCandidate | Candidate, robot_xy_m: tuple[float, float],
-               cells_xy_m: np.ndarray | None = None, why: str | None = None) -> None:
+    def reject(
+        self,
+        cand: GoalCandidate | Candidate,
+        robot_xy_m: tuple[float, float],
+        cells_xy_m: np.ndarray | None = None,
+        why: str | None = None,
+    ) -> None:
         """Record a rejection (``why``: the policy's reason). ``cells_xy_m``: the centres of its
         cells (kept with the cluster for ``rejected_cluster``). Rejecting it again keeps the best
         evidence seen and the latest reason."""
@@ -86,8 +92,15 @@ class CandidateMemory:
         old = self._rejected.get(cl.id)
         if old is not None:
             n_views, best = max(n_views, old.n_views), max(float(best), old.best_score)
-        self._rejected[cl.id] = CandidateInfo(cl.id, CandidateState.REJECTED.value, cl.centroid_xy_m, n_views,
-                                              float(best), math.dist(cl.centroid_xy_m, robot_xy_m), why)
+        self._rejected[cl.id] = CandidateInfo(
+            cl.id,
+            CandidateState.REJECTED.value,
+            cl.centroid_xy_m,
+            n_views,
+            float(best),
+            math.dist(cl.centroid_xy_m, robot_xy_m),
+            why,
+        )
         if cells_xy_m is not None and len(cells_xy_m):
             self._clusters[cl.id] = (cl, np.asarray(cells_xy_m, np.float64).reshape(-1, 2))
 
@@ -109,9 +122,22 @@ class CandidateMemory:
         return replace(cl, cells_ij=np.asarray(cells_of(xy), np.int64).reshape(-1, 2))
 
     def infos(self, live: list[GoalCandidate], robot_xy_m: tuple[float, float]) -> tuple[CandidateInfo, ...]:
-        out = [CandidateInfo(c.id, c.state.value, c.cluster.centroid_xy_m, len(c.views), float(c.best_score),
-                             round(math.dist(c.cluster.centroid_xy_m, robot_xy_m), 3)) for c in live]
-        out += [CandidateInfo(r.id, r.state, r.xy_m, r.n_views, r.best_score, round(math.dist(r.xy_m, robot_xy_m), 3),
-                              r.why)
-                for k, r in self._rejected.items() if all(c.id != k for c in live)]
+        out = [
+            CandidateInfo(
+                c.id,
+                c.state.value,
+                c.cluster.centroid_xy_m,
+                len(c.views),
+                float(c.best_score),
+                round(math.dist(c.cluster.centroid_xy_m, robot_xy_m), 3),
+            )
+            for c in live
+        ]
+        out += [
+            CandidateInfo(
+                r.id, r.state, r.xy_m, r.n_views, r.best_score, round(math.dist(r.xy_m, robot_xy_m), 3), r.why
+            )
+            for k, r in self._rejected.items()
+            if all(c.id != k for c in live)
+        ]
         return tuple(out)

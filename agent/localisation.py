@@ -78,7 +78,7 @@ class GoalLocaliser:
         self._frame = np.zeros(0, np.int64)
         self._views: dict[int, View] = {}
 
-    def view(self, frame: int) -> "View | None":
+    def view(self, frame: int) -> View | None:
         """The view (step) that added points, or None."""
         return self._views.get(frame)
 
@@ -108,12 +108,14 @@ class GoalLocaliser:
             return np.zeros((0, 3), np.float32)
         z = self._depth_at(obs.depth_m, uv, cfg.depth_window_px if window_px is None else window_px)
         ok = np.isfinite(z) & (z >= cfg.min_depth_m) & (z <= cfg.max_depth_m)
-        cloud = lift_pixels(uv[ok, 0], uv[ok, 1], z[ok], obs.intrinsics, obs.pose, obs.camera_height_m,
-                            obs.camera_tilt_rad)
+        cloud = lift_pixels(
+            uv[ok, 0], uv[ok, 1], z[ok], obs.intrinsics, obs.pose, obs.camera_height_m, obs.camera_tilt_rad
+        )
         return cloud.xyz_run[cloud.xyz_run[:, 2] >= cfg.min_height_m]
 
-    def add_matches(self, obs: Observation, goal_xy: np.ndarray, obs_xy: np.ndarray, goal_mask: np.ndarray,
-                    score: float) -> np.ndarray:
+    def add_matches(
+        self, obs: Observation, goal_xy: np.ndarray, obs_xy: np.ndarray, goal_mask: np.ndarray, score: float
+    ) -> np.ndarray:
         """Add the points of matches whose goal keypoint lies in ``goal_mask`` (h, w) bool. Returns them."""
         if len(goal_xy) == 0:
             return np.zeros((0, 3), np.float32)
@@ -183,8 +185,18 @@ class GoalLocaliser:
             cells = np.unique(ij_k[sel], axis=0)
             c = pts[:, :2].mean(axis=0)
             frames = np.unique(frame_k[sel])
-            out.append(Candidate(int(lab), pts, cells, (float(c[0]), float(c[1])), int(sel.sum()),
-                                 float(score_k[sel].max()), int(len(frames)), int(index_k[sel].min()),
-                                 tuple(int(f) for f in frames)))
+            out.append(
+                Candidate(
+                    int(lab),
+                    pts,
+                    cells,
+                    (float(c[0]), float(c[1])),
+                    int(sel.sum()),
+                    float(score_k[sel].max()),
+                    int(len(frames)),
+                    int(index_k[sel].min()),
+                    tuple(int(f) for f in frames),
+                )
+            )
         out.sort(key=lambda c: c.n_points, reverse=True)
         return out

@@ -18,8 +18,9 @@ the agent propagates to the caller with the steps done so far in ``LoopError.res
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Protocol, Sequence
+from typing import Protocol
 
 from agent.types import Action, Agent, AgentRecord, Backend, Observation
 
@@ -91,8 +92,18 @@ def run_loop(
     end = "budget"
 
     def result(how: str) -> LoopResult:
-        return LoopResult(how, n, last_action, last_record, reset_s, time.perf_counter() - t_loop, first_action_s,
-                          act_s, backend_s, backend_reset_s)
+        return LoopResult(
+            how,
+            n,
+            last_action,
+            last_record,
+            reset_s,
+            time.perf_counter() - t_loop,
+            first_action_s,
+            act_s,
+            backend_s,
+            backend_reset_s,
+        )
 
     try:
         for step in range(max_steps):

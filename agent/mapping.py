@@ -69,7 +69,7 @@ class MapLayers:
     frontier_blacklist: np.ndarray  # frontiers given up (reached, unreachable, stalled); may be forgiven
 
     @staticmethod
-    def empty(shape: tuple[int, int]) -> "MapLayers":
+    def empty(shape: tuple[int, int]) -> MapLayers:
         return MapLayers(*(np.zeros(shape, bool) for _ in dataclasses.fields(MapLayers)))
 
     def names(self) -> tuple[str, ...]:
@@ -187,8 +187,12 @@ class GridMap:
         inside = self.in_bounds(ij)
         n_outside = int(np.count_nonzero(~inside))
         if n_beyond or n_outside:
-            log.debug("depth frame: %d readings beyond %.1f m, %d points outside the map extent",
-                      n_beyond, cfg.max_depth_m, n_outside)
+            log.debug(
+                "depth frame: %d readings beyond %.1f m, %d points outside the map extent",
+                n_beyond,
+                cfg.max_depth_m,
+                n_outside,
+            )
         height = cloud.xyz_run[:, 2]
         is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
         h, w = self.shape
@@ -258,8 +262,10 @@ class GridMap:
         something at the side marks the front) and obstacle cells there are quantisation
         artefacts; both are cleared within the radius less one cell."""
         r = self.config.robot_radius_m
-        self.ensure_contains((min(xy_from[0], xy_to[0]) - r, min(xy_from[1], xy_to[1]) - r),
-                             (max(xy_from[0], xy_to[0]) + r, max(xy_from[1], xy_to[1]) + r))
+        self.ensure_contains(
+            (min(xy_from[0], xy_to[0]) - r, min(xy_from[1], xy_to[1]) - r),
+            (max(xy_from[0], xy_to[0]) + r, max(xy_from[1], xy_to[1]) + r),
+        )
         n = max(2, int(math.ceil(math.dist(xy_from, xy_to) / (0.5 * self.resolution_m))) + 1)
         seg = np.linspace(xy_from, xy_to, n)
         ij = self.xy_to_ij(seg)

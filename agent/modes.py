@@ -27,9 +27,8 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field, replace
-
 from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from agent.events import Context, Event, Note, event_facts, sentence
@@ -95,7 +94,7 @@ class ApproachState:
     region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
     collisions_forgiven: int = 0  # times the collision marks were dropped before giving it up as unreachable
 
-    def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> "ApproachState":
+    def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> ApproachState:
         """The state after a plan of ``distance_m`` to the candidate at ``candidate_xy_m``: a new
         candidate (centroid moved over 0.5 m) restarts the count; getting 5 cm nearer than ever
         resets the stall, anything else adds a stalled step."""
@@ -149,7 +148,7 @@ class PolicyState:
     rescan: RescanState = field(default_factory=RescanState)
     motion: MotionState = field(default_factory=MotionState)
     ring_confirmed: frozenset[int] = frozenset()  # steps whose look from the verify ring confirmed a candidate
-    last_resort: "LastResortState" = field(default_factory=lambda: LastResortState())
+    last_resort: LastResortState = field(default_factory=lambda: LastResortState())
     rechecked: bool = False  # the second look at the best frames when exhausted was taken
 
 

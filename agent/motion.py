@@ -37,8 +37,15 @@ def blocked_here(grid: GridMap, motion: MotionState, pose: Pose2D) -> bool:
     return any((i, j, h) in motion.blocked for h in range(N_HEADINGS))
 
 
-def safe_action(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, planner: FMMPlanner,
-                motion: MotionState, detour_after_turns: int = 0) -> tuple[Action, MotionState]:
+def safe_action(
+    plan: Plan,
+    pose: Pose2D,
+    field: DistanceField,
+    grid: GridMap,
+    planner: FMMPlanner,
+    motion: MotionState,
+    detour_after_turns: int = 0,
+) -> tuple[Action, MotionState]:
     """The plan's action, unless it is a forward move that already failed from this very
     cell and heading: then turn towards the side the path bends to. And when the plan turns
     back to such a heading (it points between two 30 deg headings and the nearer one is
@@ -76,11 +83,20 @@ def safe_action(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, p
     path = plan.path_xy_m
     far = path[min(len(path) - 1, 8)]
     err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
-    return (Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT), replace(motion, blocked_repeats=motion.blocked_repeats + 1)
+    return (Action.TURN_LEFT if err >= 0 else Action.TURN_RIGHT), replace(
+        motion, blocked_repeats=motion.blocked_repeats + 1
+    )
 
 
-def detour_heading(plan: Plan, pose: Pose2D, field: DistanceField, grid: GridMap, planner: FMMPlanner,
-                   motion: MotionState, aim_m: float = 1.0) -> int | None:
+def detour_heading(
+    plan: Plan,
+    pose: Pose2D,
+    field: DistanceField,
+    grid: GridMap,
+    planner: FMMPlanner,
+    motion: MotionState,
+    aim_m: float = 1.0,
+) -> int | None:
     """The heading bin of a side-step out of a to-and-fro run, or None.
 
     The run means the plan's next move is one that failed from here and every turn away from it

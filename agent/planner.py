@@ -171,8 +171,9 @@ class FMMPlanner:
         txy = grid.ij_to_xy(np.array([target_ij]))[0]
         return Plan(action, target_ij, (float(txy[0]), float(txy[1])), float(d.flat[k]), path_xy)
 
-    def action_along(self, path_xy: np.ndarray, pose: Pose2D, grid: GridMap | None = None,
-                     field: DistanceField | None = None) -> Action:
+    def action_along(
+        self, path_xy: np.ndarray, pose: Pose2D, grid: GridMap | None = None, field: DistanceField | None = None
+    ) -> Action:
         """Turn towards the look-ahead point on the path, or move forward when facing it.
 
         The look-ahead point is the farthest path point within ``lookahead_m`` that the robot

@@ -40,10 +40,9 @@ Oracle ablations are injected callables (the agent never imports sim/):
 from __future__ import annotations
 
 import logging
-import math
 import time
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Callable
 
 import numpy as np
 
@@ -98,7 +97,9 @@ class ModIINAgent:
         # potential evidence (frames above potential_tau_ratio x tau) must get past the gate too
         floor = pc.potential_tau_ratio if pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0 else 1.0
         self.reid = ReIdentifier(config.reid, matcher, min_score_ratio=floor) if needs_matcher else None
-        self.segmenter = GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
+        self.segmenter = (
+            GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
+        )
         self.planner = FMMPlanner(config.planner)
         self.nav = CandidateNavigator(pc, self.planner, self.tau)
         self._record: AgentRecord | None = None
@@ -150,8 +151,12 @@ class ModIINAgent:
         # 1. mapping (with collision marks for forward moves that did not move the robot)
         t = time.perf_counter()
         if self._prev_pose is not None:
+            assert self._prev_action is not None  # set with the pose
             self._set(motion=after_action(self._state.motion, self._prev_action))
-            if self._prev_action == Action.MOVE_FORWARD and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m:
+            if (
+                self._prev_action == Action.MOVE_FORWARD
+                and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m
+            ):
                 self.grid.mark_collision(self._prev_pose)
                 m = self._state.motion
                 self._set(motion=replace(m, blocked=m.blocked | {move_key(self.grid, self._prev_pose)}))
@@ -185,8 +190,13 @@ class ModIINAgent:
 
         # 3. localisation
         t = time.perf_counter()
-        potential = (not detected and pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0
-                     and self.tau is not None and score >= pc.potential_tau_ratio * self.tau)
+        potential = (
+            not detected
+            and pc.reid_source == "matcher"
+            and pc.potential_tau_ratio < 1.0
+            and self.tau is not None
+            and score >= pc.potential_tau_ratio * self.tau
+        )
         if potential or detected:
             self._localise(obs, result, score)
         elif searching and result is not None and pc.reid_source == "matcher":
@@ -289,8 +299,12 @@ class ModIINAgent:
         pc = self.config.policy
         picked = self._pick(candidates)
         if picked is None and self._state.steps < pc.look_around_turns:
-            return Decision(Action.TURN_LEFT, Mode.LOOK_AROUND, Event.LOOK_AROUND,
-                            event_facts(turn=self._state.steps + 1, turns=pc.look_around_turns))
+            return Decision(
+                Action.TURN_LEFT,
+                Mode.LOOK_AROUND,
+                Event.LOOK_AROUND,
+                event_facts(turn=self._state.steps + 1, turns=pc.look_around_turns),
+            )
         if picked is not None and picked.state == CandidateState.POTENTIAL:
             decision = self._deadline_over(obs, picked)
             if decision is not None:
@@ -333,8 +347,9 @@ class ModIINAgent:
         tried = self._state.last_resort.candidate_id
         if decision is None or tried is None or self.memory.best_score_of(tried) <= picked.best_score:
             return None  # the rejected ones left to try are no better (those better were unreachable)
-        return decision.within(Context.DEADLINE_OVER_WEAKER, steps_left=pc.step_budget - obs.step,
-                               score=picked.best_score)
+        return decision.within(
+            Context.DEADLINE_OVER_WEAKER, steps_left=pc.step_budget - obs.step, score=picked.best_score
+        )
 
     def _explore(self, obs: Observation) -> Decision:
         """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end."""
@@ -359,8 +374,15 @@ class ModIINAgent:
             action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
             if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
-            return Decision(action, Mode.EXPLORE, Event.FRONTIER, event_facts(choice=choice.reason), plan=plan,
-                            target_kind="frontier", planner_error=error)
+            return Decision(
+                action,
+                Mode.EXPLORE,
+                Event.FRONTIER,
+                event_facts(choice=choice.reason),
+                plan=plan,
+                target_kind="frontier",
+                planner_error=error,
+            )
         return self._rescan(obs, error)
 
     def _rescan(self, obs: Observation, error: str | None) -> Decision:
@@ -396,17 +418,28 @@ class ModIINAgent:
         frames again with the full matcher, localise their matches whatever the score, and decide
         on the candidates they form (None: no candidate came of it, or already done)."""
         pc = self.config.policy
-        if (self._state.rechecked or len(self.shortlist) == 0 or self.reid is None
-                or pc.reid_source != "matcher" or pc.localisation_source != "goal_mask"):
+        if (
+            self._state.rechecked
+            or len(self.shortlist) == 0
+            or self.reid is None
+            or pc.reid_source != "matcher"
+            or pc.localisation_source != "goal_mask"
+        ):
             return None
         self._set(rechecked=True)
         frames = self.shortlist.take()
-        scored = [(kept, self.reid.compare(kept.rgb, use_gate=False)) for _, kept in frames
-                  if self.localiser.view(kept.step) is None]
+        scored = [
+            (kept, self.reid.compare(kept.rgb, use_gate=False))
+            for _, kept in frames
+            if self.localiser.view(kept.step) is None
+        ]
         scores = [r.score for kept, r in scored if r.score > 0 and len(self._localise(kept, r, r.score))]
         best = max(scores) if scores else None
-        log.info("exploration exhausted with no candidate: second look, %d of the %d frames kept added points",
-                 len(scores), len(frames))
+        log.info(
+            "exploration exhausted with no candidate: second look, %d of the %d frames kept added points",
+            len(scores),
+            len(frames),
+        )
         cands = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if scores else []
         if not cands:
             return None

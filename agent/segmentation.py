@@ -15,8 +15,9 @@ Sources:
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -56,7 +57,8 @@ def grabcut_mask(rgb: np.ndarray, config: SegmentationConfig = SegmentationConfi
     cv2.circle(init, (sw // 2, sh // 2), r, int(cv2.GC_FGD), -1)
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = cv2.cvtColor(np.ascontiguousarray(small), cv2.COLOR_RGB2BGR)
-    cv2.grabCut(bgr, init, None, bgd, fgd, config.grabcut_iterations, cv2.GC_INIT_WITH_MASK)
+    # no rectangle: the mask initialises it (OpenCV's stubs do not allow the None it takes then)
+    cv2.grabCut(bgr, init, None, bgd, fgd, config.grabcut_iterations, cv2.GC_INIT_WITH_MASK)  # type: ignore[call-overload]
     fg = ((init == cv2.GC_FGD) | (init == cv2.GC_PR_FGD)).astype(np.uint8)
     n, labels = cv2.connectedComponents(fg, connectivity=8)
     if n > 2:  # keep the component at the centre (the seed makes it exist)

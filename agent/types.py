@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -60,7 +61,7 @@ class Pose2D:
     y_m: float = 0.0
     yaw_rad: float = 0.0
 
-    def compose(self, other: "Pose2D") -> "Pose2D":
+    def compose(self, other: Pose2D) -> Pose2D:
         """``self * other``: ``other`` expressed in ``self``'s frame, returned in the parent frame."""
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         return Pose2D(
@@ -69,7 +70,7 @@ class Pose2D:
             wrap_angle(self.yaw_rad + other.yaw_rad),
         )
 
-    def inverse(self) -> "Pose2D":
+    def inverse(self) -> Pose2D:
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         return Pose2D(
             -(c * self.x_m + s * self.y_m),
@@ -77,7 +78,7 @@ class Pose2D:
             wrap_angle(-self.yaw_rad),
         )
 
-    def relative_to(self, origin: "Pose2D") -> "Pose2D":
+    def relative_to(self, origin: Pose2D) -> Pose2D:
         """This pose expressed in the frame of ``origin`` (``origin^-1 * self``)."""
         return origin.inverse().compose(self)
 
@@ -88,7 +89,7 @@ class Pose2D:
         rot = np.array([[c, -s], [s, c]])
         return xy @ rot.T + np.array([self.x_m, self.y_m])
 
-    def distance_to(self, other: "Pose2D") -> float:
+    def distance_to(self, other: Pose2D) -> float:
         return math.hypot(self.x_m - other.x_m, self.y_m - other.y_m)
 
     def as_tuple(self) -> tuple[float, float, float]:
@@ -107,13 +108,13 @@ class Intrinsics:
     height_px: int
 
     @staticmethod
-    def from_hfov(width_px: int, height_px: int, hfov_deg: float) -> "Intrinsics":
+    def from_hfov(width_px: int, height_px: int, hfov_deg: float) -> Intrinsics:
         """Square pixels, principal point at the image centre."""
         f = (width_px / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
         return Intrinsics(f, f, width_px / 2.0, height_px / 2.0, width_px, height_px)
 
     @staticmethod
-    def from_matrix(K: np.ndarray, width_px: int, height_px: int) -> "Intrinsics":
+    def from_matrix(K: np.ndarray, width_px: int, height_px: int) -> Intrinsics:
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
             raise ValueError(f"camera matrix must be 3x3, got {K.shape}")

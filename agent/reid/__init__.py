@@ -8,6 +8,16 @@ from agent.reid.base import Features, Matcher, Matches, ScoreKind, score, valid_
 from agent.reid.identifier import ReIDConfig, ReIdentifier, ReIDResult, calibration_path, make_matcher, resolve_tau
 
 __all__ = [
-    "Features", "Matcher", "Matches", "ScoreKind", "score", "valid_matches",
-    "ReIDConfig", "ReIdentifier", "ReIDResult", "calibration_path", "make_matcher", "resolve_tau",
+    "Features",
+    "Matcher",
+    "Matches",
+    "ScoreKind",
+    "score",
+    "valid_matches",
+    "ReIDConfig",
+    "ReIdentifier",
+    "ReIDResult",
+    "calibration_path",
+    "make_matcher",
+    "resolve_tau",
 ]

@@ -46,13 +46,18 @@ class AlikedLightGlue:
         with torch.inference_mode():
             feats = self._extractor.extract(x, resize=None)
         kp = feats["keypoints"][0]
-        return Features((kp.numpy() * scale).astype(np.float32), feats["descriptors"][0],
-                        (rgb.shape[1], rgb.shape[0]), extra={"feats": feats})
+        return Features(
+            (kp.numpy() * scale).astype(np.float32),
+            feats["descriptors"][0],
+            (rgb.shape[1], rgb.shape[0]),
+            extra={"feats": feats},
+        )
 
     def match(self, goal: Features, obs: Features) -> Matches:
         if len(goal) == 0 or len(obs) == 0:
             return Matches.empty()
         with self._torch.inference_mode():
             out = self._glue({"image0": goal.extra["feats"], "image1": obs.extra["feats"]})
-        return valid_matches(out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(),
-                             self.min_confidence, len(obs))
+        return valid_matches(
+            out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(), self.min_confidence, len(obs)
+        )

@@ -48,7 +48,7 @@ class Matches:
     confidence: np.ndarray
 
     @staticmethod
-    def empty() -> "Matches":
+    def empty() -> Matches:
         return Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32))
 
     def __len__(self) -> int:

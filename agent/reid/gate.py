@@ -85,8 +85,9 @@ def mnn_count(sim_obs_goal: Any, min_cosine: float) -> int:
     return int((mutual & (best_val >= min_cosine)).sum())
 
 
-def gate_threshold_for(full_scores: np.ndarray, gate_scores: np.ndarray, tau: float,
-                       max_drop: float = 0.01, near_tau: float = 0.5) -> tuple[float, dict[str, float]]:
+def gate_threshold_for(
+    full_scores: np.ndarray, gate_scores: np.ndarray, tau: float, max_drop: float = 0.01, near_tau: float = 0.5
+) -> tuple[float, dict[str, float]]:
     """The gate threshold for one source of frames: at most ``max_drop`` of the frames the full
     matcher scores at or above ``tau`` may fall below it (a frame is dropped when its gate score
     is below the threshold).
@@ -123,7 +124,12 @@ def gate_threshold_for(full_scores: np.ndarray, gate_scores: np.ndarray, tau: fl
     ratio = gate[near] / full[near]
     bound = float(np.floor(np.quantile(ratio, max_drop, method="lower") * tau))
     threshold = min(direct, bound)
-    return threshold, {"positives": float(len(pos)), "direct": direct, "bound": bound,
-                       "near_tau_frames": float(near.sum()),
-                       "dropped_share": float(np.mean(pos < threshold)),
-                       "pass_share": float(np.mean(gate >= threshold)), "frames": float(len(full))}
+    return threshold, {
+        "positives": float(len(pos)),
+        "direct": direct,
+        "bound": bound,
+        "near_tau_frames": float(near.sum()),
+        "dropped_share": float(np.mean(pos < threshold)),
+        "pass_share": float(np.mean(gate >= threshold)),
+        "frames": float(len(full)),
+    }

@@ -58,8 +58,7 @@ def calibration_path(matcher: str, kind: str) -> Path:
 
 
 def _calibration(config: ReIDConfig) -> tuple[Path, dict]:
-    path = (Path(config.calibration_file) if config.calibration_file
-            else calibration_path(config.matcher, config.score))
+    path = Path(config.calibration_file) if config.calibration_file else calibration_path(config.matcher, config.score)
     if not path.is_file():
         raise FileNotFoundError(
             f"no re-ID threshold: set reid.tau or run `imgnav calibrate --matcher {config.matcher} "
@@ -67,13 +66,16 @@ def _calibration(config: ReIDConfig) -> tuple[Path, dict]:
         )
     data = json.loads(path.read_text())
     if data.get("matcher") != config.matcher or data.get("score") != config.score:
-        raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, "
-                         f"not {config.matcher}/{config.score}")
+        raise ValueError(
+            f"{path} calibrates {data.get('matcher')}/{data.get('score')}, not {config.matcher}/{config.score}"
+        )
     # LightGlue's adaptive depth was measured and rejected (docs/experiments): every calibration is
     # made with all layers, and a file made with the early stop does not fit this matcher
     if float(data.get("early_stop", -1.0)) != -1.0:
-        raise ValueError(f"{path} was calibrated with LightGlue's early stop, which this matcher does not use: "
-                         "calibrate again, or set reid.tau")
+        raise ValueError(
+            f"{path} was calibrated with LightGlue's early stop, which this matcher does not use: "
+            "calibrate again, or set reid.tau"
+        )
     return path, data
 
 
@@ -98,9 +100,13 @@ def resolve_gate_threshold(config: ReIDConfig) -> float | None:
         return float(config.gate_threshold)
     path, data = _calibration(config)
     if abs(float(data.get("gate_min_cosine", config.gate_min_cosine)) - config.gate_min_cosine) > 1e-9:
-        raise ValueError(f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
-                         f"the config asks for {config.gate_min_cosine}")
-    return _threshold_in_file(config, path, data, "gate_threshold", "the gate is off, every frame gets the full matcher")
+        raise ValueError(
+            f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
+            f"the config asks for {config.gate_min_cosine}"
+        )
+    return _threshold_in_file(
+        config, path, data, "gate_threshold", "the gate is off, every frame gets the full matcher"
+    )
 
 
 def resolve_exit_threshold(config: ReIDConfig) -> float | None:
@@ -118,8 +124,12 @@ def resolve_exit_threshold(config: ReIDConfig) -> float | None:
         return float(config.gate_exit_threshold)
     path, data = _calibration(config)
     if "gate_exit_threshold" in data and int(data.get("gate_exit_layer", -1)) != config.gate_exit_layer:
-        log.warning("%s: the exit stage was calibrated after layer %s, the config asks for %d: the exit stage is off",
-                    path, data.get("gate_exit_layer"), config.gate_exit_layer)
+        log.warning(
+            "%s: the exit stage was calibrated after layer %s, the config asks for %d: the exit stage is off",
+            path,
+            data.get("gate_exit_layer"),
+            config.gate_exit_layer,
+        )
         return None
     return _threshold_in_file(config, path, data, "gate_exit_threshold", "the gate's exit stage is off")
 
@@ -131,8 +141,14 @@ def _threshold_in_file(config: ReIDConfig, path: Path, data: dict, key: str, off
         log.warning("reid.gate is on but %s has no %s (run `imgnav calibrate --gate`): %s", path, key, off)
         return None
     if config.tau is not None and float(config.tau) < float(data["tau"]):
-        log.warning("reid.tau %.4g is below the tau %.4g the %s in %s was calibrated for: %s",
-                    config.tau, float(data["tau"]), key, path, off)
+        log.warning(
+            "reid.tau %.4g is below the tau %.4g the %s in %s was calibrated for: %s",
+            config.tau,
+            float(data["tau"]),
+            key,
+            path,
+            off,
+        )
         return None
     return float(data[key])
 
@@ -152,8 +168,11 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
-        return XFeatLighterGlue(config.max_side_px, config.min_confidence,
-                                exit_layer=config.gate_exit_layer if (config.gate or config.gate_shadow) else 0)
+        return XFeatLighterGlue(
+            config.max_side_px,
+            config.min_confidence,
+            exit_layer=config.gate_exit_layer if (config.gate or config.gate_shadow) else 0,
+        )
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
 
@@ -190,8 +209,9 @@ class ReIdentifier:
     """Goal features once per run; per frame: extract, gate, and (when the gate lets the frame
     through, or the gate is off) the full matcher."""
 
-    def __init__(self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None,
-                 min_score_ratio: float = 1.0) -> None:
+    def __init__(
+        self, config: ReIDConfig = ReIDConfig(), matcher: Matcher | None = None, min_score_ratio: float = 1.0
+    ) -> None:
         """``min_score_ratio``: the lowest full score that matters to the caller, as a share of
         tau (1.0: detections only; the policy's potential evidence uses less). The gate's
         threshold was calibrated to keep the frames that reach tau, from a bound linear in the
@@ -203,20 +223,25 @@ class ReIdentifier:
         if not 0.0 < min_score_ratio <= 1.0:
             raise ValueError(f"min_score_ratio {min_score_ratio} must be in (0, 1]")
         if min_score_ratio < 0.5 and config.gate:
-            log.warning("re-ID gate scaled to %.2f of tau: below the tau/2 its bound was measured from", min_score_ratio)
+            log.warning(
+                "re-ID gate scaled to %.2f of tau: below the tau/2 its bound was measured from", min_score_ratio
+            )
         base = resolve_gate_threshold(config)
         self.gate_threshold = None if base is None else base * min_score_ratio
         self._gate = MNNGate(config.gate_min_cosine) if (config.gate or config.gate_shadow) else None
         # the second stage, scaled like the first (its bound is linear in the score as well)
         exit_base = resolve_exit_threshold(config)
-        if exit_base is not None and not hasattr(self.matcher, "exit_layer"):
+        matcher_exit: int | None = getattr(self.matcher, "exit_layer", None)  # only LighterGlue has one
+        if exit_base is not None and matcher_exit is None:
             log.info("the injected matcher %s has no exit layer: the gate's exit stage is off", self.matcher.name)
             exit_base = None
-        if exit_base is not None and self.matcher.exit_layer != config.gate_exit_layer:  # type: ignore[attr-defined]
-            raise ValueError(f"the re-ID gate's exit stage is calibrated after layer {config.gate_exit_layer}, the "
-                             f"matcher exits after layer {self.matcher.exit_layer} (agent.reid.identifier.make_matcher)")  # type: ignore[attr-defined]
+        if exit_base is not None and matcher_exit != config.gate_exit_layer:
+            raise ValueError(
+                f"the re-ID gate's exit stage is calibrated after layer {config.gate_exit_layer}, the "
+                f"matcher exits after layer {matcher_exit} (agent.reid.identifier.make_matcher)"
+            )
         self.exit_threshold = None if exit_base is None else exit_base * min_score_ratio
-        if config.gate_shadow and getattr(self.matcher, "exit_layer", 0):
+        if config.gate_shadow and matcher_exit:
             # shadow recordings (gate off) report the exit stage's score of every frame too
             self.matcher.always_score_exit = True  # type: ignore[attr-defined]
 
@@ -244,8 +269,17 @@ class ReIdentifier:
         gate_score = self._gate.score(obs.descriptors) if self._gate is not None else None
         t_gate = time.perf_counter()
         if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
-            return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, 0.0,
-                              full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3)
+            return ReIDResult(
+                0.0,
+                Matches.empty(),
+                _EMPTY_XY,
+                _EMPTY_XY,
+                (t1 - t0) * 1e3,
+                0.0,
+                full_matcher=False,
+                gate_score=gate_score,
+                gate_ms=(t_gate - t1) * 1e3,
+            )
         exit_on = use_gate and self.exit_threshold is not None
         if exit_on:
             m = self.matcher.match(self.goal, obs, exit_below=(self.config.score, self.exit_threshold))  # type: ignore[call-arg]
@@ -255,9 +289,18 @@ class ReIdentifier:
         exit_scores = getattr(self.matcher, "exit_scores", None)
         exit_score = None if exit_scores is None else float(exit_scores[self.config.score])
         if exit_on and self.matcher.exited:  # type: ignore[attr-defined]
-            return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, (t2 - t_gate) * 1e3,
-                              full_matcher=False, gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3,
-                              exit_score=exit_score)
+            return ReIDResult(
+                0.0,
+                Matches.empty(),
+                _EMPTY_XY,
+                _EMPTY_XY,
+                (t1 - t0) * 1e3,
+                (t2 - t_gate) * 1e3,
+                full_matcher=False,
+                gate_score=gate_score,
+                gate_ms=(t_gate - t1) * 1e3,
+                exit_score=exit_score,
+            )
         return ReIDResult(
             score=score(m, self.config.score),
             matches=m,

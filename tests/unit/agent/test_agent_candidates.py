@@ -11,8 +11,9 @@ from tests.helpers.agent_scenes import BOXES, obs_and_ids
 
 def _add_view(loc, pose, step, score):
     obs, ids = obs_and_ids(pose)
-    obs = type(obs)(rgb=obs.rgb, depth_m=obs.depth_m, pose=pose, intrinsics=obs.intrinsics,
-                    goal_image=obs.goal_image, step=step)
+    obs = type(obs)(
+        rgb=obs.rgb, depth_m=obs.depth_m, pose=pose, intrinsics=obs.intrinsics, goal_image=obs.goal_image, step=step
+    )
     return loc.add_mask_pixels(obs, ids == len(BOXES) - 1, score)
 
 

@@ -12,7 +12,7 @@ from tests.helpers.agent_scenes import observation, room_walls
 def box(grid, layer, x0, y0, x1, y1, value=True):
     a = grid.xy_to_ij(np.array([[x0, y0]]))[0]
     b = grid.xy_to_ij(np.array([[x1, y1]]))[0]
-    getattr(grid.layers, layer)[a[0]:b[0], a[1]:b[1]] = value
+    getattr(grid.layers, layer)[a[0] : b[0], a[1] : b[1]] = value
 
 
 def two_door_room() -> GridMap:

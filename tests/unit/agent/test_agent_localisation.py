@@ -3,9 +3,9 @@ import numpy as np
 from agent.localisation import GoalLocaliser, LocalisationConfig
 from agent.mapping import GridMap
 from agent.segmentation import GoalSegmenter, SegmentationConfig, crop_mask, grabcut_mask
-from agent.types import Pose2D
+from agent.types import Observation, Pose2D
 from tests.helpers.agent_scenes import BOXES, obs_and_ids
-from agent.types import Observation
+
 
 def test_matches_on_the_object_become_goal_points_and_outliers_are_clustered_away():
     obs, ids = obs_and_ids()
@@ -53,8 +53,14 @@ def test_a_softly_rejected_candidate_drops_only_evidence_below_tau():
     grid.blacklist_cells(cand.cells_ij, 0.3, layer="potential_blacklist")
     assert loc.candidates(grid, detection_score=75.0) == []
     later = obs_and_ids(Pose2D(0.5, 0.0, 0.0))[0]
-    later = Observation(rgb=later.rgb, depth_m=later.depth_m, pose=later.pose, intrinsics=later.intrinsics,
-                        goal_image=later.goal_image, step=7)
+    later = Observation(
+        rgb=later.rgb,
+        depth_m=later.depth_m,
+        pose=later.pose,
+        intrinsics=later.intrinsics,
+        goal_image=later.goal_image,
+        step=7,
+    )
     loc.add_mask_pixels(later, obs_and_ids(Pose2D(0.5, 0.0, 0.0))[1] == len(BOXES) - 1, score=90.0)  # a detection
     (again,) = loc.candidates(grid, detection_score=75.0)
     assert again.max_score == 90.0 and again.frames == (7,)

@@ -22,8 +22,14 @@ class Backend:
 
     def _obs(self) -> Observation:
         n = len(self.applied)
-        return Observation(np.zeros((8, 8, 3), np.uint8), np.ones((8, 8), np.float32), Pose2D(float(n), 0.0, 0.0), K,
-                           np.zeros((8, 8, 3), np.uint8), step=n)
+        return Observation(
+            np.zeros((8, 8, 3), np.uint8),
+            np.ones((8, 8), np.float32),
+            Pose2D(float(n), 0.0, 0.0),
+            K,
+            np.zeros((8, 8, 3), np.uint8),
+            step=n,
+        )
 
     def reset(self) -> Observation:
         return self._obs()
@@ -86,8 +92,13 @@ def test_agent_stop_ends_the_loop_and_every_sink_sees_every_step() -> None:
     a, b = Collect(), Collect()
     result = run_loop(backend, agent, 1000, sinks=(a, b))
     assert result.end == "agent" and result.n_steps == 5 and result.last_action == Action.STOP
-    assert [s.action for s in a.steps] == [Action.MOVE_FORWARD, Action.TURN_LEFT, Action.MOVE_FORWARD,
-                                           Action.TURN_LEFT, Action.STOP]
+    assert [s.action for s in a.steps] == [
+        Action.MOVE_FORWARD,
+        Action.TURN_LEFT,
+        Action.MOVE_FORWARD,
+        Action.TURN_LEFT,
+        Action.STOP,
+    ]
     assert [s.step for s in b.steps] == [0, 1, 2, 3, 4] and backend.applied == [s.action for s in a.steps]
     assert a.steps[1].obs.step == 1 and result.first_action_s is not None
     assert backend.observed == 4  # nothing is observed after STOP

@@ -29,7 +29,7 @@ def test_front_wall_is_obstacle_and_floor_is_free():
     assert not L.explored[cell(grid, -0.5, 0.0)]
     # no obstacle inside the room
     inner = grid.xy_to_ij(np.array([[0.0, -1.5], [4.8, 1.5]]))
-    assert not L.obstacle[inner[0, 0]:inner[1, 0], inner[0, 1]:inner[1, 1]].any()
+    assert not L.obstacle[inner[0, 0] : inner[1, 0], inner[0, 1] : inner[1, 1]].any()
 
 
 def test_obstacle_height_band():
@@ -59,8 +59,9 @@ def test_layers_do_not_drift_when_the_map_grows():
     goal_after = grid.ij_to_xy(np.argwhere(grid.layers.goal))
     assert len(goal_after) == 1
     assert math.dist(goal_after[0], goal_xy) < grid.resolution_m
-    np.testing.assert_allclose(np.sort(grid.ij_to_xy(np.argwhere(grid.layers.collision)), axis=0),
-                               np.sort(coll_before, axis=0), atol=1e-9)
+    np.testing.assert_allclose(
+        np.sort(grid.ij_to_xy(np.argwhere(grid.layers.collision)), axis=0), np.sort(coll_before, axis=0), atol=1e-9
+    )
 
 
 def test_collision_mark_is_in_front_of_the_robot():

@@ -10,7 +10,7 @@ from agent.events import Context, Event
 from agent.modes import Decision, Mode
 from agent.policy import ModIINAgent
 from agent.types import Action, Pose2D
-from tests.helpers.agent_runs import oracle_agent, oracle_config, run_decisions
+from tests.helpers.agent_runs import oracle_agent, run_decisions
 from tests.helpers.agent_scenes import BoxWorld, room_walls, two_rooms
 
 
@@ -45,8 +45,14 @@ def _rejected_then_exhausted(last_resort: bool, max_steps: int = 600, **policy):
     two small rooms runs out. The deadline is off unless asked for."""
     boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(2.0, -1.0, 0.6), goal)
-    pol = dict(look_around_turns=4, max_rescans=1, last_resort=last_resort, verify_ring_tau_ratio=1.0,
-               last_resort_at_deadline=False, exhausted_recheck_frames=0)
+    pol = dict(
+        look_around_turns=4,
+        max_rescans=1,
+        last_resort=last_resort,
+        verify_ring_tau_ratio=1.0,
+        last_resort_at_deadline=False,
+        exhausted_recheck_frames=0,
+    )
     pol.update(policy)
     agent = _scored_agent(world, decoy, lambda d: 60.0, lambda d: 0.0, **pol)
     return world, run_decisions(agent, world, max_steps=max_steps)
@@ -81,12 +87,13 @@ def test_without_the_last_resort_the_same_run_stops_exhausted_where_it_stands():
 def test_the_last_resort_at_the_deadline_goes_back_before_the_budget_runs_out():
     # a budget of 100 steps: exploration would still be going when it runs out (step 65 is
     # where it ends with the budget unknown), so the run would end without a STOP
-    world, steps = _rejected_then_exhausted(last_resort=False, max_steps=100, last_resort_at_deadline=True,
-                                            step_budget=100)
+    world, steps = _rejected_then_exhausted(
+        last_resort=False, max_steps=100, last_resort_at_deadline=True, step_budget=100
+    )
     modes = [d.mode for d, _ in steps]
     assert Mode.LAST_RESORT in modes and Mode.RESCAN not in modes
     k = modes.index(Mode.LAST_RESORT)
-    assert modes.index(Mode.VERIFY) < k and Mode.EXPLORE in modes[modes.index(Mode.VERIFY):k]
+    assert modes.index(Mode.VERIFY) < k and Mode.EXPLORE in modes[modes.index(Mode.VERIFY) : k]
     rejected = [c for c in steps[k - 1][1].candidates if c.state == "rejected"]
     assert len(rejected) == 1
     # from the step it was due on, the last resort comes before exploration, to the end
@@ -103,8 +110,9 @@ def test_the_last_resort_at_the_deadline_goes_back_before_the_budget_runs_out():
 
 
 def test_without_the_deadline_the_same_budget_runs_out_exploring():
-    world, steps = _rejected_then_exhausted(last_resort=False, max_steps=60, last_resort_at_deadline=False,
-                                            step_budget=60)
+    world, steps = _rejected_then_exhausted(
+        last_resort=False, max_steps=60, last_resort_at_deadline=False, step_budget=60
+    )
     modes = [d.mode for d, _ in steps]
     assert len(steps) == 60 and Mode.LAST_RESORT not in modes and steps[-1][0].action != Action.STOP
     assert world.distance_to_goal() > 1.0
@@ -142,8 +150,16 @@ def test_rescan_then_exhausted():
 
 
 def test_mode_names_are_the_record_strings():
-    assert [m.value for m in Mode] == ["look_around", "explore", "approach", "verify", "rescan", "stopped", "exhausted",
-                                       "last_resort"]
+    assert [m.value for m in Mode] == [
+        "look_around",
+        "explore",
+        "approach",
+        "verify",
+        "rescan",
+        "stopped",
+        "exhausted",
+        "last_resort",
+    ]
     assert str(Mode.VERIFY) == "verify"
 
 
@@ -297,15 +313,20 @@ def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
 
     pol = dict(reid_source="matcher", localisation_source="oracle", potential_tau_ratio=0.5)
     pol.update(policy)
-    agent = ModIINAgent(AgentConfig(reid=ReIDConfig(tau=100.0, gate=False), policy=PolicyConfig(**pol)), matcher=NoMatcher(),
-                        oracle_ego_mask=lambda obs: world.goal_mask(obs) if world.goal_visible(obs) else world._ids == decoy)
+    agent = ModIINAgent(
+        AgentConfig(reid=ReIDConfig(tau=100.0, gate=False), policy=PolicyConfig(**pol)),
+        matcher=NoMatcher(),
+        oracle_ego_mask=lambda obs: world.goal_mask(obs) if world.goal_visible(obs) else world._ids == decoy,
+    )
     x0, y0, x1, y1, _ = world.boxes[decoy]
 
     def compare(rgb, use_gate=True):
         if world.goal_visible(None):
             score = goal_score(world.distance_to_goal())
         elif np.count_nonzero(world._ids == decoy) >= 20:
-            d = math.hypot(world.pose.x_m - min(max(world.pose.x_m, x0), x1), world.pose.y_m - min(max(world.pose.y_m, y0), y1))
+            d = math.hypot(
+                world.pose.x_m - min(max(world.pose.x_m, x0), x1), world.pose.y_m - min(max(world.pose.y_m, y0), y1)
+            )
             score = decoy_score(d)
         else:
             score = 0.0
@@ -352,5 +373,7 @@ def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
     assert any(d.mode == Mode.VERIFY for d, _ in steps)
     assert not any(d.has(Context.RING_CONFIRMED) for d, _ in steps)
     last, rec = steps[-1]
-    assert any(c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates)
+    assert any(
+        c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates
+    )
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0

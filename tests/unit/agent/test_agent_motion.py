@@ -37,8 +37,15 @@ def test_the_run_of_alternating_turns_counts_to_and_fro_only():
 
     m = MotionState()
     runs = []
-    for a in (Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_LEFT, Action.TURN_LEFT, Action.TURN_RIGHT,
-              Action.MOVE_FORWARD, Action.TURN_RIGHT):
+    for a in (
+        Action.TURN_LEFT,
+        Action.TURN_RIGHT,
+        Action.TURN_LEFT,
+        Action.TURN_LEFT,
+        Action.TURN_RIGHT,
+        Action.MOVE_FORWARD,
+        Action.TURN_RIGHT,
+    ):
         m = after_action(m, a)
         runs.append(m.alternating_turns)
     # a turn the same way starts a new run; a forward move ends it
@@ -59,8 +66,9 @@ def test_a_to_and_fro_run_ends_in_a_side_step_on_the_other_side():
     grid, planner, field = _open_room_at(pose)
     i, j, h = move_key(grid, pose)
     # the move ahead failed here, and so did the one 30 deg to the left (where the path bends)
-    motion = MotionState(blocked=frozenset({(i, j, h), (i, j, (h + 1) % N_HEADINGS)}), alternating_turns=4,
-                         last_action=Action.TURN_LEFT)
+    motion = MotionState(
+        blocked=frozenset({(i, j, h), (i, j, (h + 1) % N_HEADINGS)}), alternating_turns=4, last_action=Action.TURN_LEFT
+    )
     path = np.array([[-2.0 + 0.05 * k, -1.0] for k in range(40)], np.float32)  # straight ahead, 2 m
     plan = Plan(Action.MOVE_FORWARD, (0, 0), tuple(path[-1]), 2.0, path)
     # off, or before the N-th turn: the refusal turns towards the path as before

@@ -15,10 +15,10 @@ def corridor_grid() -> GridMap:
     L.explored[:] = True
     L.obstacle[:] = True
     free = np.zeros(grid.shape, bool)
-    for (x0, y0, x1, y1) in [(-0.4, -0.4, 4.4, 0.4), (3.6, -0.4, 4.4, 4.4)]:
+    for x0, y0, x1, y1 in [(-0.4, -0.4, 4.4, 0.4), (3.6, -0.4, 4.4, 4.4)]:
         ij0 = grid.xy_to_ij(np.array([[x0, y0]]))[0]
         ij1 = grid.xy_to_ij(np.array([[x1, y1]]))[0]
-        free[ij0[0]:ij1[0], ij0[1]:ij1[1]] = True
+        free[ij0[0] : ij1[0], ij0[1] : ij1[1]] = True
     L.obstacle &= ~free
     return grid
 
@@ -88,7 +88,7 @@ def test_walking_the_plan_reaches_the_target_without_touching_walls():
 def test_unreachable_target_is_an_error_not_a_stop():
     grid = corridor_grid()
     walled = grid.xy_to_ij(np.array([[3.6, 2.0], [4.4, 2.3]]))
-    grid.layers.obstacle[walled[0, 0]:walled[1, 0], walled[0, 1]:walled[1, 1]] = True
+    grid.layers.obstacle[walled[0, 0] : walled[1, 0], walled[0, 1] : walled[1, 1]] = True
     planner = FMMPlanner()
     pose = Pose2D()
     field = planner.distance_field(grid, pose)

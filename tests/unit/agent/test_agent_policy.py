@@ -44,9 +44,11 @@ def test_a_detection_is_trusted_so_a_false_positive_detection_wins():
     # verified from the ring (test_agent_modes), so a re-ID false positive is stopped at
     boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(0.0, -1.0, math.pi * 0.75), goal)
-    agent = ModIINAgent(oracle_config(),
-                        oracle_reid=lambda obs: np.count_nonzero(world._ids == decoy) >= 20,
-                        oracle_ego_mask=lambda obs: world._ids == decoy)
+    agent = ModIINAgent(
+        oracle_config(),
+        oracle_reid=lambda obs: np.count_nonzero(world._ids == decoy) >= 20,
+        oracle_ego_mask=lambda obs: world._ids == decoy,
+    )
     rec = run(agent, world)
     assert rec.action == Action.STOP and world.distance_to_goal() > 2.0
 
@@ -89,8 +91,9 @@ def test_a_failed_forward_move_is_marked_and_not_repeated():
     boxes, goal, _ = two_rooms()
     curb = (-1.2, -2.0, -1.1, -0.5, 0.05)
     world = BoxWorld(boxes + [curb], Pose2D(-1.5, -1.0, 0.0), goal)
-    agent = ModIINAgent(oracle_config(look_around_turns=0), oracle_reid=world.goal_visible,
-                        oracle_ego_mask=world.goal_mask)
+    agent = ModIINAgent(
+        oracle_config(look_around_turns=0), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask
+    )
     obs = world.observe()
     agent.reset(obs.goal_image)
     forwards, failed, marked = [], 0, False
@@ -117,8 +120,11 @@ def test_given_up_frontiers_are_forgiven_before_exhaustion_but_rejected_candidat
     boxes, goal, _ = two_rooms()
     world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
     # re-ID fires within 3 m only: the goal must be explored to, through the door
-    agent = ModIINAgent(oracle_config(), oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() < 3.0,
-                        oracle_ego_mask=world.goal_mask)
+    agent = ModIINAgent(
+        oracle_config(),
+        oracle_reid=lambda o: world.goal_visible(o) and world.distance_to_goal() < 3.0,
+        oracle_ego_mask=world.goal_mask,
+    )
     obs = world.observe()
     agent.reset(obs.goal_image)
     world.apply(agent.act(obs))

@@ -31,8 +31,13 @@ def test_left_pixel_is_to_the_left():
 
 @settings(max_examples=50, deadline=None)
 @given(
-    u=st.floats(0, 359), v=st.floats(0, 639), z=st.floats(0.2, 20.0),
-    x=st.floats(-10, 10), y=st.floats(-10, 10), yaw=st.floats(-math.pi, math.pi), tilt=st.floats(-0.6, 0.6),
+    u=st.floats(0, 359),
+    v=st.floats(0, 639),
+    z=st.floats(0.2, 20.0),
+    x=st.floats(-10, 10),
+    y=st.floats(-10, 10),
+    yaw=st.floats(-math.pi, math.pi),
+    tilt=st.floats(-0.6, 0.6),
 )
 def test_project_inverts_lift(u, v, z, x, y, yaw, tilt):
     pose = Pose2D(x, y, yaw)

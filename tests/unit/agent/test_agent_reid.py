@@ -15,10 +15,12 @@ def goal_and_views():
     x0, y0, x1, y1 = 100, 60, 330, 460
     sx, sy = 360 / (x1 - x0), 640 / (y1 - y0)
     same = cv2.resize(warped[y0:y1, x0:x1], (360, 640))
+
     # goal pixel -> view pixel
     def to_view(xy):
         w = xy @ A[:, :2].T + A[:, 2]
         return np.stack([(w[:, 0] - x0) * sx, (w[:, 1] - y0) * sy], axis=1)
+
     other = cv2.resize(skimage.data.coffee(), (360, 640))
     return goal, same, other, to_view
 

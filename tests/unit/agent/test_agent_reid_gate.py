@@ -158,8 +158,17 @@ def test_gate_threshold_from_config_or_calibration_file(tmp_path):
     # an operator's calibration without a gate threshold: gate off (never a changed decision)
     f.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0}))
     assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f))) is None
-    f.write_text(json.dumps({"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0,
-                             "gate_threshold": 21.0, "gate_min_cosine": 0.82}))
+    f.write_text(
+        json.dumps(
+            {
+                "matcher": "xfeat_lighterglue",
+                "score": "conf",
+                "tau": 70.0,
+                "gate_threshold": 21.0,
+                "gate_min_cosine": 0.82,
+            }
+        )
+    )
     assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 21.0
     # the threshold holds for its tau or a higher one, not for a lower explicit tau
     assert resolve_gate_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=90.0)) == 21.0
@@ -182,8 +191,9 @@ def _views():
     import skimage.data
 
     goal = cv2.resize(skimage.data.astronaut(), (512, 512))
-    same = cv2.resize(cv2.warpAffine(goal, cv2.getRotationMatrix2D((256, 256), 10, 0.8), (512, 512))[60:460, 100:330],
-                      (360, 640))
+    same = cv2.resize(
+        cv2.warpAffine(goal, cv2.getRotationMatrix2D((256, 256), 10, 0.8), (512, 512))[60:460, 100:330], (360, 640)
+    )
     other = cv2.resize(skimage.data.coffee(), (360, 640))
     return goal, same, other
 
@@ -229,7 +239,13 @@ def test_exit_threshold_from_config_or_calibration_file(tmp_path):
     assert resolve_exit_threshold(ReIDConfig(gate=True, gate_exit_threshold=3.0)) == 3.0
     assert resolve_exit_threshold(ReIDConfig(matcher="sift", gate=True, gate_exit_threshold=3.0)) is None  # no layers
     f = tmp_path / "cal.json"
-    base = {"matcher": "xfeat_lighterglue", "score": "conf", "tau": 70.0, "gate_threshold": 21.0, "gate_min_cosine": 0.82}
+    base = {
+        "matcher": "xfeat_lighterglue",
+        "score": "conf",
+        "tau": 70.0,
+        "gate_threshold": 21.0,
+        "gate_min_cosine": 0.82,
+    }
     f.write_text(json.dumps(base))  # calibrated before the exit stage: off
     assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) is None
     f.write_text(json.dumps({**base, "gate_exit_layer": 2, "gate_exit_threshold": 6.5}))

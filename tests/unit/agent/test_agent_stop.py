@@ -10,8 +10,15 @@ from agent.stop_region import core_cells, core_points
 def _candidate(grid, points_xyz):
     pts = np.asarray(points_xyz, np.float32)
     cells = np.unique(grid.xy_to_ij(pts[:, :2]), axis=0)
-    return Candidate(label=0, points_xyz=pts, cells_ij=cells, centroid_xy_m=tuple(np.median(pts[:, :2], axis=0)),
-                     n_points=len(pts), max_score=100.0, n_frames=1)
+    return Candidate(
+        label=0,
+        points_xyz=pts,
+        cells_ij=cells,
+        centroid_xy_m=tuple(np.median(pts[:, :2], axis=0)),
+        n_points=len(pts),
+        max_score=100.0,
+        n_frames=1,
+    )
 
 
 def _thin_object_with_stray_points(rng):

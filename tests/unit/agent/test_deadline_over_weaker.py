@@ -20,8 +20,15 @@ def run(over_weaker: bool, budget: int = BUDGET, window: int = BUDGET):
     last resort at step 248. Returns (decisions with records, distance to the goal per step)."""
     boxes, goal, decoy = two_rooms()
     world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
-    agent, _ = painted_agent(world, lambda: 20.0, exhausted_recheck_frames=8, last_resort_at_deadline=True,
-                              step_budget=budget, deadline_window_steps=window, deadline_over_weaker=over_weaker)
+    agent, _ = painted_agent(
+        world,
+        lambda: 20.0,
+        exhausted_recheck_frames=8,
+        last_resort_at_deadline=True,
+        step_budget=budget,
+        deadline_window_steps=window,
+        deadline_over_weaker=over_weaker,
+    )
     obs = world.observe()
     agent.reset(obs.goal_image)
     steps, dist = [], []
@@ -54,8 +61,10 @@ def test_at_the_deadline_the_better_rejected_candidate_goes_before_a_weaker_pote
     d_on, rec_on = on[k]
     facts = {n.context: dict(n.facts) for n in d_on.context}
     assert d_on.mode == Mode.LAST_RESORT and rec_on.context == ("deadline_over_weaker", "last_resort")
-    assert facts == {Context.DEADLINE_OVER_WEAKER: {"steps_left": BUDGET - k, "score": 5.0},
-                     Context.LAST_RESORT: {"score": 20.0}}
+    assert facts == {
+        Context.DEADLINE_OVER_WEAKER: {"steps_left": BUDGET - k, "score": 5.0},
+        Context.LAST_RESORT: {"score": 20.0},
+    }
     assert all(d.mode in (Mode.LAST_RESORT, Mode.STOPPED) for d, _ in on[k:])
     # ... and it stops at the goal within the budget
     last, rec = on[-1]

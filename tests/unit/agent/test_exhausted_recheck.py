@@ -12,6 +12,7 @@ from agent.types import Pose2D
 from tests.helpers.agent_runs import painted_agent
 from tests.helpers.agent_scenes import SMALL_INTRINSICS, PaintedWorld, observation, two_rooms
 
+
 def _obs(x, y, yaw_deg, step, value=0):
     rgb = np.full((SMALL_INTRINSICS.height_px, SMALL_INTRINSICS.width_px, 3), value, np.uint8)
     return observation([], Pose2D(x, y, math.radians(yaw_deg)), rgb=rgb, step=step)
@@ -39,7 +40,7 @@ def test_the_shortlist_copies_the_frames_and_can_be_off():
     s.offer(o, 1.0)
     o.rgb[:] = 99  # a backend reusing its buffer
     o.depth_m[:] = 0.0
-    (_, kept), = s.take()
+    ((_, kept),) = s.take()
     assert int(kept.rgb.max()) == 7 and float(kept.depth_m.max()) > 0.0
     off = FrameShortlist(0)
     assert not off.offer(o, 100.0) and len(off) == 0
@@ -54,8 +55,11 @@ def run_exhausted(frames, **policy):
     second_look = {"taken": False}
     # 20 wherever it is seen while exploring; after the second look, 60 from within 2.6 m
     agent, ungated = painted_agent(
-        world, lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
-        exhausted_recheck_frames=frames, **policy)
+        world,
+        lambda: 60.0 if second_look["taken"] and world.distance_to_goal() <= 2.6 else 20.0,
+        exhausted_recheck_frames=frames,
+        **policy,
+    )
     steps = []
     obs = world.observe()
     agent.reset(obs.goal_image)
