@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -213,22 +214,10 @@ class CandidateNavigator:
                 plan = self.planner.plan(grid, field, pose, wider)
                 a = replace(a, region_unreachable=True)
         except PlanError as exc:
-            a = replace(a, unreachable_steps=a.unreachable_steps + 1)
-            st = replace(st, approach=a)
-            if a.unreachable_steps >= pc.unreachable_goal_steps:
-                forgiven, st = self.forgive_before_reject(scene, st)
-                if forgiven:
-                    return self.approach(scene, st, cand)
-                return None, self.reject(scene, st, cand, f"unreachable for {a.unreachable_steps} steps")
-            # keep looking around: the map may open a way (a new view, a cleared collision)
-            return Decision(
-                Action.TURN_LEFT,
-                Mode.APPROACH,
-                Event.GOAL_NOT_REACHABLE_YET,
-                target_kind="goal",
-                candidate=cand,
-                planner_error=f"{exc.reason}: {exc}",
-            ), st
+            return self._no_plan(
+                scene, st, cand, exc, "unreachable", lambda s: self.approach(scene, s, cand),
+                Mode.APPROACH, Event.GOAL_NOT_REACHABLE_YET,
+            )  # fmt: skip
         # No progress towards the candidate for too long (blocked by what the map does not
         # show, or oscillating): give it up rather than spend the budget on it.
         a = a.after_plan(cand.centroid_xy_m, plan.distance_m)
@@ -237,6 +226,25 @@ class CandidateNavigator:
             return None, self.reject(scene, st, cand, f"no progress for {a.stall_steps} steps")
         action, st = self.steer(scene, st, plan, field)
         return Decision(action, Mode.APPROACH, Event.APPROACH, plan=plan, target_kind="goal", candidate=cand), st
+
+    def _no_plan(
+        self, scene: Scene, st: PolicyState, cand: Candidate, exc: PlanError, why: str,
+        retry: Callable[[PolicyState], Outcome], mode: Mode, event: Event,
+    ) -> Outcome:  # fmt: skip
+        """No plan to the candidate (or its verify ring) this step: after ``unreachable_goal_steps``
+        in a row, drop the collision marks once and ``retry``, else reject it ("<why> for N steps");
+        before that, keep turning: the map may open a way (a new view, a cleared collision)."""
+        a = replace(st.approach, unreachable_steps=st.approach.unreachable_steps + 1)
+        st = replace(st, approach=a)
+        if a.unreachable_steps >= self.config.unreachable_goal_steps:
+            forgiven, st = self.forgive_before_reject(scene, st)
+            if forgiven:
+                return retry(st)
+            return None, self.reject(scene, st, cand, f"{why} for {a.unreachable_steps} steps")
+        planner_error = f"{exc.reason}: {exc}"
+        return Decision(
+            Action.TURN_LEFT, mode, event, target_kind="goal", candidate=cand, planner_error=planner_error
+        ), st
 
     def _at_candidate(self, scene: Scene, cand: Candidate) -> Decision:
         """In the stop region: face the goal's nearest cell, then STOP."""
@@ -289,21 +297,10 @@ class CandidateNavigator:
         try:
             plan = self.planner.plan(grid, field, pose, ring)
         except PlanError as exc:
-            a = replace(a, unreachable_steps=a.unreachable_steps + 1)
-            st = replace(st, approach=a)
-            if a.unreachable_steps >= pc.unreachable_goal_steps:
-                forgiven, st = self.forgive_before_reject(scene, st)
-                if forgiven:
-                    return self.verify_by_approach(scene, st, cand)
-                return None, self.reject(scene, st, cl, f"verify ring unreachable for {a.unreachable_steps} steps")
-            return Decision(
-                Action.TURN_LEFT,
-                Mode.VERIFY,
-                Event.VERIFY_RING_NOT_REACHABLE_YET,
-                target_kind="goal",
-                candidate=cl,
-                planner_error=f"{exc.reason}: {exc}",
-            ), st
+            return self._no_plan(
+                scene, st, cl, exc, "verify ring unreachable", lambda s: self.verify_by_approach(scene, s, cand),
+                Mode.VERIFY, Event.VERIFY_RING_NOT_REACHABLE_YET,
+            )  # fmt: skip
         a = a.after_plan(cl.centroid_xy_m, plan.distance_m)
         st = replace(st, approach=a)
         if a.stall_steps > pc.approach_patience_steps:
