@@ -1,14 +1,22 @@
 # The two set-up commands of the README:
 #   make run    install everything into .venv and start the console with the simulator
 #   make test   install everything (incl. test tools and Chromium) and run the whole suite
+# For the edit loop:
+#   make test-fast   the unit tests without the slow ones (under a minute)
+#   make lint        ruff (lint and format) and mypy, as CI runs them
 PY ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 HOST ?= 127.0.0.1
 PORT ?= 8000
+# pytest-xdist workers: one per logical CPU (on a 2-core machine: 2). A file's tests stay on one worker (--dist loadfile), so a
+# module's fixtures (a Ray cluster, a built home, a started console) are built once.
+WORKERS ?= logical
+PYTEST := $(BIN)/python -m pytest
+LINT_PATHS := agent sim robot console benchmarks tests
 
-.PHONY: run test install chromium bench
+.PHONY: run test test-fast lint install chromium bench
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -28,8 +36,18 @@ chromium:
 run: $(STAMP)
 	$(BIN)/imgnav console --host $(HOST) --port $(PORT)
 
-test: $(STAMP) chromium
-	$(BIN)/python -m pytest -q
+# the Python packages and Chromium install side by side (neither waits for the other)
+test:
+	@$(MAKE) --no-print-directory -j2 $(STAMP) chromium
+	$(PYTEST) -q -n $(WORKERS) --dist loadfile
+
+test-fast: $(STAMP)
+	$(PYTEST) -q -n $(WORKERS) -m "not slow" tests/unit
+
+lint: $(STAMP)
+	$(BIN)/ruff check $(LINT_PATHS)
+	$(BIN)/ruff format --check $(LINT_PATHS)
+	$(BIN)/mypy
 
 bench: $(STAMP)
 	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done

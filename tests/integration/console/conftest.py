@@ -11,17 +11,21 @@ import pytest
 
 from console.sim_provider import SimProvider, SimProviderConfig
 from tests.helpers.console_live import HOME_SEED, LiveServer, sim_console
+from tests.helpers.shared import shared_dir
 
 
 @pytest.fixture(scope="session")
 def sim_data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One data dir whose simulator cache (home + gallery) is prepared once per session."""
-    data = tmp_path_factory.mktemp("console-data")
-    provider = SimProvider(data, SimProviderConfig(home_seeds=(HOME_SEED,)))
-    provider.prepare()
-    ok, why = provider.available()
-    assert ok, why
-    return data
+    """One data dir whose simulator cache (home + gallery) is prepared once per run, shared by
+    the xdist workers; read-only (tests copy its ``sim`` folder into their own data dir)."""
+
+    def prepare(data: Path) -> None:
+        provider = SimProvider(data, SimProviderConfig(home_seeds=(HOME_SEED,)))
+        provider.prepare()
+        ok, why = provider.available()
+        assert ok, why
+
+    return shared_dir(tmp_path_factory, "console-data", prepare)
 
 
 @pytest.fixture

@@ -1,4 +1,8 @@
-"""Skipping rooms the camera cannot see must not change a single pixel."""
+"""Skipping rooms the camera cannot see must not change a single pixel.
+
+Eight random views per home (half at the robot's camera, half pitched like a goal photo) in
+two 8-room homes, where from any spot several rooms are out of sight: each view compares a
+culled render with a full one, pixel for pixel."""
 
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ def test_culled_renders_are_identical() -> None:
         try:
             grid = culled.navigable_grid(0.05)
             free = np.argwhere(grid.navigable)
-            for k in range(16):
+            for k in range(8):
                 x, y = grid.ij_to_xy(free[rng.integers(len(free))][None])[0]
                 yaw = float(rng.uniform(-math.pi, math.pi))
                 if k % 2 == 0:

@@ -1,6 +1,10 @@
 """Every generated episode is solvable by the shortest-path oracle agent (checked at generation
 time by ``sim.episode_gen.oracle_solves``): over many homes, the oracle agent run on the stored
-episodes (JSON round trip, freshly built worlds) succeeds on every one."""
+episodes (JSON round trip, freshly built worlds) succeeds on every one.
+
+Four homes per split, one episode each (eight homes in all, each with its own floor plan,
+furniture and goal): several layouts, both splits' seeds and the JSON round trip, which is what
+can break between generation and use."""
 
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ from sim.oracle_agent import OracleAgent
 from sim.world import SimWorld
 
 _BLANK = np.zeros((1, 1, 3), np.uint8)
+HOMES = 4  # per split, one episode each
 
 
 def _oracle_result(world: SimWorld, episode, goal_path: Path):
@@ -43,9 +48,9 @@ def _oracle_result(world: SimWorld, episode, goal_path: Path):
 @pytest.mark.parametrize("split,seed", [("train", 901), ("val", 901)])
 def test_the_oracle_solves_every_generated_episode_over_many_homes(tmp_path: Path, split: str, seed: int) -> None:
     out = tmp_path / split
-    generate_episode_set(split, seed, 8, out, EpisodeGenConfig(episodes_per_scene=1), progress=False)
+    generate_episode_set(split, seed, HOMES, out, EpisodeGenConfig(episodes_per_scene=1), progress=False)
     es = load_episode_set(out)
-    assert len(es.episodes) == 8 and len({e.scene_seed for e in es.episodes}) == 8
+    assert len(es.episodes) == HOMES and len({e.scene_seed for e in es.episodes}) == HOMES
     for e in es.episodes:
         world = SimWorld.from_seed(e.scene_seed)
         try:

@@ -9,11 +9,13 @@ from console.cli import main
 
 
 def test_eval_writes_records_and_resumes(small_episode_set: Path, tmp_path: Path) -> None:
+    """One episode, then a resume that keeps it, drops a torn line and runs the second: each
+    part of resuming is met once (more episodes would only repeat them)."""
     out = tmp_path / "eval"
-    argv = ["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "2", "--out", str(out)]
+    argv = ["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "1", "--out", str(out)]
     assert main(argv) == 0
     lines = (out / "episodes.jsonl").read_text().splitlines()
-    assert len(lines) == 2
+    assert len(lines) == 1
     rec = json.loads(lines[0])
     for key in (
         "episode_id",
@@ -31,22 +33,22 @@ def test_eval_writes_records_and_resumes(small_episode_set: Path, tmp_path: Path
     assert rec["success"] and rec["stop_reason"] == "stop"
     assert len(rec["trajectory"]["poses_world"]) == rec["steps"] + 1 == len(rec["trajectory"]["actions"]) + 1
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["episodes"] == 2 and summary["sr"] == 1.0 and summary["spl"] >= 0.8
+    assert summary["episodes"] == 1 and summary["sr"] == 1.0 and summary["spl"] >= 0.8
     assert {"sr", "spl", "ne", "max_st", "episodes", "per_category"} <= set(summary)
 
     # a torn last line (crash mid-write) is dropped; finished episodes are skipped; the rest runs
     with (out / "episodes.jsonl").open("a") as fh:
         fh.write('{"episode_id": "half')
-    argv3 = ["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "3", "--out", str(out)]
-    assert main(argv3) == 0
+    argv2 = ["eval", "--episodes", str(small_episode_set), "--agent", "oracle", "--limit", "2", "--out", str(out)]
+    assert main(argv2) == 0
     lines = (out / "episodes.jsonl").read_text().splitlines()
-    assert len(lines) == 3 and lines[:2] == [json.dumps(json.loads(x)) for x in lines[:2]]
+    assert len(lines) == 2 and lines[0] == json.dumps(rec)  # the finished one is kept as it was
     ids = [json.loads(x)["episode_id"] for x in lines]
-    assert len(set(ids)) == 3
-    assert json.loads((out / "summary.json").read_text())["episodes"] == 3
+    assert len(set(ids)) == 2
+    assert json.loads((out / "summary.json").read_text())["episodes"] == 2
     # nothing left to do: a rerun adds nothing
-    assert main(argv3) == 0
-    assert len((out / "episodes.jsonl").read_text().splitlines()) == 3
+    assert main(argv2) == 0
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
 
 
 def test_show_draws_a_map_with_the_path_and_a_goal_sheet(small_episode_set: Path, tmp_path: Path) -> None:
