@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from console.api import create_app
-from tests.helpers.console_live import HOME_SEED, poll, sim_console
+from tests.helpers.console_live import ARTIFACTS, HOME_SEED, poll, sim_console
 
 FINAL = ("finished", "stopped", "failed", "interrupted")
 
@@ -85,8 +85,8 @@ def test_whole_run_to_completion_is_scored(client: TestClient) -> None:
     for name in ("goal.png", "goal_upload.png", "trajectory.json", "map.png", "run.webp"):
         assert name in done["artifacts"], done["artifacts"]
         assert client.get(done["artifacts"][name]).status_code == 200
-    Path("test-artifacts/console").mkdir(parents=True, exist_ok=True)
-    Path("test-artifacts/console/whole_run_map.png").write_bytes(client.get(done["artifacts"]["map.png"]).content)
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "whole_run_map.png").write_bytes(client.get(done["artifacts"]["map.png"]).content)
 
 
 def test_reencoded_gallery_photo_is_identified_and_unknown_photo_is_unscored(client: TestClient) -> None:
