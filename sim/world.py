@@ -12,7 +12,7 @@ Public contract (CONTRIBUTING.md):
 * ``.collides(x_m, y_m)``: the robot cylinder (r 0.17 m, h 1.41 m) at that position
   overlaps the scene (walls, furniture; rugs are drivable) or leaves the home.
 * ``.navigable_grid(resolution_m)``: ground-truth ``NavGrid`` (world frame), cached.
-* ``.ray_instances(from_xyz, to_xyz)``: first object hit along rays (visibility tests).
+* ``.ray_objects(from_xyz, to_xyz)``: first object hit along rays (visibility tests).
 * ``.close()``: idempotent.
 
 Every furniture piece is one multi-link body: one link per material with a
