@@ -144,7 +144,8 @@ class StepRow:
     reid_gate_score: float | None = agent_field("reid_gate_score", REAL)  # the gate's cheap score (None: gate off)
     reid_exit_score: float | None = agent_field("reid_exit_score", REAL)  # LighterGlue's score after its exit layer
     event: str | None = agent_field("event", TEXT)  # the decision's event (agent.events.Event value)
-    context: tuple[str, ...] | None = agent_field("context", NAMES)  # what it was decided in (agent.events.Context values)
+    # what it was decided in (agent.events.Context values, outermost first)
+    context: tuple[str, ...] | None = agent_field("context", NAMES)
 
 
 @dataclass(frozen=True, slots=True)
