@@ -22,7 +22,6 @@ import argparse
 import logging
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -44,8 +43,8 @@ def main() -> int:
     import torch
 
     from agent.config import load_agent_config
-    from agent.policy import ModIINAgent
     from agent.loop import run_loop
+    from agent.policy import ModIINAgent
     from sim.backend import SimBackend
     from sim.world import SimWorld
 
@@ -112,14 +111,19 @@ def main() -> int:
     for w in worlds.values():
         w.close()
     n = len(samples["default"]["total"])
-    print(f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
-          f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, "
-          f"torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
-          f"{es.split} episodes; every variant on the same frames, back to back")
+    print(
+        f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
+        f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, "
+        f"torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
+        f"{es.split} episodes; every variant on the same frames, back to back"
+    )
     med = {name: {k: statistics.median(v) for k, v in per.items() if v} for name, per in samples.items()}
     names = list(variants)
-    print(f"  {'part':<13}" + "".join(f" {name:>20} {'p90':>8}" for name in names)
-          + "".join(f"   default/{name}" for name in names[1:]))
+    print(
+        f"  {'part':<13}"
+        + "".join(f" {name:>20} {'p90':>8}" for name in names)
+        + "".join(f"   default/{name}" for name in names[1:])
+    )
     for k in PARTS:
         if any(k not in med[name] for name in names):
             continue
@@ -127,14 +131,24 @@ def main() -> int:
         for name in names:
             v = sorted(samples[name][k])
             cells.append(f" {med[name][k]:17.1f} ms {v[int(0.9 * (len(v) - 1))]:6.1f} ms")
-        ratios = [f"   {med['default'][k] / med[name][k]:{len('default/' + name)}.2f}" if med[name][k] > 0.05
-                  else "   " + "-".rjust(len("default/" + name)) for name in names[1:]]
+        ratios = [
+            f"   {med['default'][k] / med[name][k]:{len('default/' + name)}.2f}"
+            if med[name][k] > 0.05
+            else "   " + "-".rjust(len("default/" + name))
+            for name in names[1:]
+        ]
         print(f"  {k:<13}" + "".join(cells) + "".join(ratios))
-    print("  full matcher ran on " + ", ".join(f"{full_runs[name]} of {n} frames ({100 * full_runs[name] / max(n, 1):.1f}%) "
-                                               f"{name}" for name in names))
+    print(
+        "  full matcher ran on "
+        + ", ".join(
+            f"{full_runs[name]} of {n} frames ({100 * full_runs[name] / max(n, 1):.1f}%) {name}" for name in names
+        )
+    )
     if sim_ms:
-        print(f"  (simulator apply+render per step, median over episodes {statistics.median(sim_ms):.1f} ms, "
-              "not part of the agent)")
+        print(
+            f"  (simulator apply+render per step, median over episodes {statistics.median(sim_ms):.1f} ms, "
+            "not part of the agent)"
+        )
     if tmp is not None:
         tmp.cleanup()
     return 0

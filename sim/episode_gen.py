@@ -213,29 +213,15 @@ def oracle_solves(
     """Whether the shortest-path oracle agent succeeds on this episode, as ``imgnav eval --agent
     oracle`` would run it (same backend, agent and metrics). The oracle never looks at the
     images, so one blank observation stands in for the renders."""
-    from agent.types import Intrinsics, Observation
     from sim.backend import SimBackend
-    from sim.oracle_agent import OracleAgent
+    from sim.oracle_agent import run_blind
 
     blank = np.zeros((1, 1, 3), np.uint8)
     backend = SimBackend(
         world, blank, start_world, goal_instance_id, np.asarray(viewpoints_xy_m, float), shortest_path_m
     )
     try:
-        agent = OracleAgent(backend.oracle)
-        agent.reset(blank)
-        intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
-        while not backend.done:
-            obs = Observation(
-                rgb=blank,
-                depth_m=np.zeros((1, 1), np.float32),
-                pose=Pose2D(),
-                intrinsics=intr,
-                goal_image=blank,
-                step=backend.steps,
-            )
-            backend.apply(agent.act(obs))
-        result = backend.result()
+        result = run_blind(backend)
         return bool(result is not None and result.success)
     finally:
         backend.close()  # does not close the shared world

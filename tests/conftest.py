@@ -1,11 +1,18 @@
-"""Marks every test under tests/integration ``integration`` (real PyBullet homes, servers, a
-browser), so that ``-m "not integration"`` or ``make test-fast`` leave them out."""
+"""Suite-wide settings: nothing is written into the checkout, and every test under
+tests/integration is marked ``integration`` (real PyBullet homes, servers, a browser), so that
+``-m "not integration"`` leaves them out."""
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
+
+# Hypothesis keeps its example database in ./.hypothesis unless told otherwise (read when first
+# needed, after this file is imported).
+os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gettempdir(), "imgnav-hypothesis"))
 
 INTEGRATION = Path(__file__).parent / "integration"
 

@@ -25,20 +25,29 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from agent.reid.identifier import MatcherName
 
 log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--matcher", nargs="+", default=["xfeat_lighterglue"],
-                        choices=["xfeat_lighterglue", "aliked_lightglue", "sift"])
+    parser.add_argument(
+        "--matcher", nargs="+", default=["xfeat_lighterglue"], choices=["xfeat_lighterglue", "aliked_lightglue", "sift"]
+    )
     parser.add_argument("--instances", type=int, default=100, help="train instances (>= 100 for the paper's protocol)")
     parser.add_argument("--images-per-instance", type=int, default=10)
     parser.add_argument("--scene-set", type=int, default=500, help="set seed of the train homes used for calibration")
-    parser.add_argument("--max-negatives", type=int, default=8000,
-                        help="different-instance pairs drawn uniformly (weighted by the inverse rate); 0 = all")
+    parser.add_argument(
+        "--max-negatives",
+        type=int,
+        default=8000,
+        help="different-instance pairs drawn uniformly (weighted by the inverse rate); 0 = all",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", default="sim", help="agent deployment or YAML whose reid settings are used")
     parser.add_argument("--out", default="runs/calibration")
@@ -47,7 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-write-agent", action="store_true", help="do not write agent/calibration/*.json")
     from sim.evaluation.cli import add_ray_arguments
 
-    add_ray_arguments(parser)  # --ray: pairs scored as Ray tasks (sim.evaluation.ray_calibration); local: --threads CPUs
+    add_ray_arguments(
+        parser
+    )  # --ray: pairs scored as Ray tasks (sim.evaluation.ray_calibration); local: --threads CPUs
     from sim.evaluation.gate_calibration import add_arguments as add_gate_arguments
 
     add_gate_arguments(parser)
@@ -92,8 +103,15 @@ def load_or_sample_images(cache: Path, instances: int, per_instance: int, scene_
                 for j, gi in enumerate(imgs):
                     p = cache / f"{key}_{j:02d}.png"
                     write_rgb(p, gi.rgb)
-                    index["images"].append({"path": p.name, "instance": key, "scene_seed": seed,
-                                            "instance_id": obj.object_id, "category": obj.category})
+                    index["images"].append(
+                        {
+                            "path": p.name,
+                            "instance": key,
+                            "scene_seed": seed,
+                            "instance_id": obj.object_id,
+                            "category": obj.category,
+                        }
+                    )
                 bar.update(1)
         index["scenes_done"].append(seed)
         index_path.write_text(json.dumps(index))
@@ -106,7 +124,9 @@ def load_or_sample_images(cache: Path, instances: int, per_instance: int, scene_
 # --- one matcher ------------------------------------------------------------------------
 
 
-def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: Path, args: argparse.Namespace) -> dict:
+def calibrate_matcher(
+    matcher_name: MatcherName, entries: list[dict], cache: Path, out: Path, args: argparse.Namespace
+) -> dict:
     from dataclasses import replace
 
     from tqdm import tqdm
@@ -125,40 +145,68 @@ def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: 
         from sim.evaluation.ray_calibration import score_pairs_on_ray
 
         with tqdm(total=len(ps.pairs), desc=f"{matcher_name} pairs (ray)", unit="pair") as bar:
-            conf, count, st = score_pairs_on_ray(ray_options(args, args.threads), cfg, [e["path"] for e in entries],
-                                                 [(cache / e["path"]).read_bytes() for e in entries], ps.pairs,
-                                                 progress=bar)
+            conf, count, st = score_pairs_on_ray(
+                ray_options(args, args.threads),
+                cfg,
+                [e["path"] for e in entries],
+                [(cache / e["path"]).read_bytes() for e in entries],
+                ps.pairs,
+                progress=bar,
+            )
         t_feat = st["extract_s"] * len(entries) / max(st["extracted"], 1)
         t_match = st["match_s"]
     else:
         matcher = make_matcher(cfg)
         t0 = time.perf_counter()
-        feats = [matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
-                 for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")]
+        feats = [
+            matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
+            for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")
+        ]
         t_feat = time.perf_counter() - t0
         t0 = time.perf_counter()
-        conf, count = score_pairs(matcher, feats, ps.pairs,
-                                  tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair"))
+        conf, count = score_pairs(
+            matcher, feats, ps.pairs, tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair")
+        )
         t_match = time.perf_counter() - t0
     cats = np.array([e["category"] for e in entries])
     same_cat = cats[ps.pairs[:, 0]] == cats[ps.pairs[:, 1]]
-    np.savez_compressed(out / f"{matcher_name}_scores.npz", pairs=ps.pairs, label=ps.label, weight=ps.weight,
-                        conf=conf, count=count, same_category=same_cat)
+    np.savez_compressed(
+        out / f"{matcher_name}_scores.npz",
+        pairs=ps.pairs,
+        label=ps.label,
+        weight=ps.weight,
+        conf=conf,
+        count=count,
+        same_category=same_cat,
+    )
     curves = {"conf": pr_curves(conf, ps.label, ps.weight), "count": pr_curves(count, ps.label, ps.weight)}
-    plot_curves(str(out / f"{matcher_name}_pr.png"), curves,
-                f"{matcher_name}: {len(set(inst))} instances, {len(entries)} images, "
-                f"{int(ps.label.sum())} same / {int((~ps.label).sum())} of {ps.n_negatives_total} different pairs")
+    plot_curves(
+        str(out / f"{matcher_name}_pr.png"),
+        curves,
+        f"{matcher_name}: {len(set(inst))} instances, {len(entries)} images, "
+        f"{int(ps.label.sum())} same / {int((~ps.label).sum())} of {ps.n_negatives_total} different pairs",
+    )
     results = {}
     for kind, c in curves.items():
         res = {
-            "matcher": matcher_name, "score": kind, "tau": c.tau, "max_f": c.max_f,
-            "precision_at_tau": float(c.precision[c.best]), "recall_at_tau": float(c.recall[c.best]),
+            "matcher": matcher_name,
+            "score": kind,
+            "tau": c.tau,
+            "max_f": c.max_f,
+            "precision_at_tau": float(c.precision[c.best]),
+            "recall_at_tau": float(c.recall[c.best]),
             "auc_pr": c.auc_pr(),
-            "instances": len(set(inst)), "images": len(entries), "same_pairs": int(ps.label.sum()),
-            "different_pairs_scored": int((~ps.label).sum()), "different_pairs_total": ps.n_negatives_total,
+            "instances": len(set(inst)),
+            "images": len(entries),
+            "same_pairs": int(ps.label.sum()),
+            "different_pairs_scored": int((~ps.label).sum()),
+            "different_pairs_total": ps.n_negatives_total,
             "negative_weight": float(ps.weight[~ps.label][0]) if (~ps.label).any() else 1.0,
-            "split": "train", "scene_set": args.scene_set, "seed": args.seed,
-            "goal_max_keypoints": cfg.goal_max_keypoints, "max_side_px": cfg.max_side_px,
+            "split": "train",
+            "scene_set": args.scene_set,
+            "seed": args.seed,
+            "goal_max_keypoints": cfg.goal_max_keypoints,
+            "max_side_px": cfg.max_side_px,
             "feature_ms_per_image": 1000 * t_feat / max(len(entries), 1),
             "match_ms_per_pair": 1000 * t_match / max(len(ps.pairs), 1),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -166,8 +214,15 @@ def calibrate_matcher(matcher_name: str, entries: list[dict], cache: Path, out: 
         (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
         if not args.no_write_agent:
             calibration_path(matcher_name, kind).write_text(json.dumps(res, indent=1) + "\n")
-        log.info("%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)", matcher_name, kind, c.max_f, c.tau,
-                 res["precision_at_tau"], res["recall_at_tau"])
+        log.info(
+            "%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)",
+            matcher_name,
+            kind,
+            c.max_f,
+            c.tau,
+            res["precision_at_tau"],
+            res["recall_at_tau"],
+        )
         results[kind] = res
     return results
 
@@ -199,8 +254,10 @@ def run(args: argparse.Namespace) -> int:
     lines = ["| matcher | score | tau | max F | precision | recall |", "| --- | --- | --- | --- | --- | --- |"]
     for name, per in table.items():
         for kind, r in per.items():
-            lines.append(f"| {name} | {kind} | {r['tau']:.4g} | {r['max_f']:.3f} | {r['precision_at_tau']:.3f} | "
-                         f"{r['recall_at_tau']:.3f} |")
+            lines.append(
+                f"| {name} | {kind} | {r['tau']:.4g} | {r['max_f']:.3f} | {r['precision_at_tau']:.3f} | "
+                f"{r['recall_at_tau']:.3f} |"
+            )
     (out / "summary.md").write_text("\n".join(lines) + "\n")
     log.info("calibration (also in %s):\n%s", out / "summary.md", "\n".join(lines))
     return 0

@@ -183,11 +183,11 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
         ]
         base_rate = None
         for d, recs in zip(out_dirs, runs):
-            c = cost([recs[k] for k in common])
-            base_rate = base_rate or c["episodes_per_hour"]
+            costs = cost([recs[k] for k in common])
+            base_rate = base_rate or costs["episodes_per_hour"]
             lines.append(
-                f"| {_label(d, recs)} | {c['agent_ms_per_step']:.0f} | {c['sim_ms_per_step']:.0f} | "
-                f"{c['episodes_per_hour']:.1f} | {c['episodes_per_hour'] / base_rate:.2f} |"
+                f"| {_label(d, recs)} | {costs['agent_ms_per_step']:.0f} | {costs['sim_ms_per_step']:.0f} | "
+                f"{costs['episodes_per_hour']:.1f} | {costs['episodes_per_hour'] / base_rate:.2f} |"
             )
     return "\n".join(lines)
 
@@ -266,10 +266,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sim.evaluation.compare", description=__doc__.split("\n\n")[0])
     ap.add_argument("out_dirs", nargs="+", help="imgnav eval output directories; the first is the base")
     ap.add_argument("--all", action="store_true", help="first table on each run's own episodes (unpaired)")
-    ap.add_argument("--identical", action="store_true",
-                    help="check that the second run's records equal the first's, field for field, apart from timings")
-    ap.add_argument("--ignore", nargs="*", default=[], metavar="PATH",
-                    help="with --identical: dotted record fields to leave out (e.g. agent_config)")
+    ap.add_argument(
+        "--identical",
+        action="store_true",
+        help="check that the second run's records equal the first's, field for field, apart from timings",
+    )
+    ap.add_argument(
+        "--ignore",
+        nargs="*",
+        default=[],
+        metavar="PATH",
+        help="with --identical: dotted record fields to leave out (e.g. agent_config)",
+    )
     args = ap.parse_args(argv)
     try:
         if args.identical:
@@ -277,8 +285,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise ValueError("--identical compares exactly two runs")
             n, lines = identical(args.out_dirs[0], args.out_dirs[1], args.ignore)
             print("\n".join(lines) if lines else "")
-            print(f"{n} episodes compared: {'identical' if not lines else f'{len(lines)} differences'} "
-                  f"(timings{' and ' + ', '.join(args.ignore) if args.ignore else ''} left out)")
+            print(
+                f"{n} episodes compared: {'identical' if not lines else f'{len(lines)} differences'} "
+                f"(timings{' and ' + ', '.join(args.ignore) if args.ignore else ''} left out)"
+            )
             return 0 if not lines else 1
         print(compare(args.out_dirs, paired=not args.all))
     except (FileNotFoundError, ValueError) as exc:

@@ -26,9 +26,10 @@ import logging
 import math
 import sys
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from agent.configio import to_dict
 from agent.events import Context
 from agent.types import Action, AgentRecord, Observation
 from sim.evaluation.registry import AgentSpec, register
+
+if TYPE_CHECKING:
+    from agent.segmentation import MaskSource
 
 log = logging.getLogger(__name__)
 
@@ -51,13 +55,25 @@ def add_arguments(group: Any) -> None:
     group.add_argument("--modiin-loc", choices=["mask", "crop", "oracle", "goalmask-oracle"], default="mask")
     group.add_argument("--modiin-matcher", choices=["xfeat_lighterglue", "aliked_lightglue", "sift"], default=None)
     group.add_argument("--modiin-tau", type=float, default=None, help="override the calibrated threshold")
-    group.add_argument("--modiin-set", action="append", default=[], metavar="KEY=VALUE",
-                       help="config override, e.g. policy.verify=false (YAML value); repeatable")
-    group.add_argument("--modiin-oracle-min-px", type=int, default=400,
-                       help="goal pixels in view for the oracle re-ID to fire")
-    group.add_argument("--modiin-seen-px", type=int, default=2300,
-                       help="goal pixels in view (1%% of the frame) for failure attribution to call it 'seen'")
-    group.add_argument("--modiin-threads", type=int, default=None, help="torch threads per worker (default 2 // workers)")
+    group.add_argument(
+        "--modiin-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config override, e.g. policy.verify=false (YAML value); repeatable",
+    )
+    group.add_argument(
+        "--modiin-oracle-min-px", type=int, default=400, help="goal pixels in view for the oracle re-ID to fire"
+    )
+    group.add_argument(
+        "--modiin-seen-px",
+        type=int,
+        default=2300,
+        help="goal pixels in view (1%% of the frame) for failure attribution to call it 'seen'",
+    )
+    group.add_argument(
+        "--modiin-threads", type=int, default=None, help="torch threads per worker (default 2 // workers)"
+    )
 
 
 def variant_name(args: argparse.Namespace) -> str:
@@ -99,7 +115,8 @@ def build_config(args: argparse.Namespace) -> AgentConfig:
         pol = replace(pol, localisation_source="oracle")
     else:
         pol = replace(pol, localisation_source="goal_mask")
-        seg = replace(seg, source={"mask": "grabcut", "crop": "crop", "goalmask-oracle": "oracle"}[args.modiin_loc])
+        sources: dict[str, MaskSource] = {"mask": "grabcut", "crop": "crop", "goalmask-oracle": "oracle"}
+        seg = replace(seg, source=sources[args.modiin_loc])
     threads = getattr(args, "modiin_threads", None) or max(1, 2 // max(1, getattr(args, "workers", 1) or 1))
     reid = replace(reid, num_threads=threads)
     return replace(cfg, reid=reid, policy=pol, segmentation=seg)
@@ -132,7 +149,9 @@ def make_agent(args: argparse.Namespace, oracle: Any):
     agent = ModIINAgent(
         cfg,
         matcher=matcher,
-        oracle_reid=(lambda obs: int(oracle.goal_mask().sum()) >= min_px) if cfg.policy.reid_source == "oracle" else None,
+        oracle_reid=(lambda obs: int(oracle.goal_mask().sum()) >= min_px)
+        if cfg.policy.reid_source == "oracle"
+        else None,
         oracle_ego_mask=(lambda obs: oracle.goal_mask()) if cfg.policy.localisation_source == "oracle" else None,
         goal_mask_fn=_PendingGoalMask() if cfg.segmentation.source == "oracle" else None,
     )
@@ -194,7 +213,9 @@ class Attribution:
         # which changes between commits): records stay interpretable on their own
         self.agent_config = to_dict(build_config(args))
         agent = _AGENTS_BY_ORACLE.get(id(oracle))
-        if agent is not None and isinstance(getattr(agent, "segmenter", None) and agent.segmenter.oracle, _PendingGoalMask):
+        if agent is not None and isinstance(
+            getattr(agent, "segmenter", None) and agent.segmenter.oracle, _PendingGoalMask
+        ):
             agent.segmenter.oracle.mask = goal_image_mask(oracle, episode)
         obj = oracle.world.home.instance(episode.goal_instance_id)
         self.goal_bounds_world = obj.bounds_xy_m()
@@ -281,8 +302,13 @@ class Attribution:
         for c in getattr(self.last, "candidates", ()):
             x, y = self.oracle.start_pose_world.transform_xy(np.array([c.xy_m]))[0]
             to_goal = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
-            row = {"id": c.id, "state": c.state, "n_views": c.n_views, "best_score": round(c.best_score, 1),
-                   "to_goal_m": round(to_goal, 2)}
+            row = {
+                "id": c.id,
+                "state": c.state,
+                "n_views": c.n_views,
+                "best_score": round(c.best_score, 1),
+                "to_goal_m": round(to_goal, 2),
+            }
             if getattr(c, "why", None):
                 row["why"] = c.why
             out.append(row)
@@ -325,9 +351,13 @@ class Attribution:
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,
                 "second_look_step": self.second_look_step,
-                "trace": {"reid_score": self.trace_score, "goal_px": self.trace_goal_px, "gate_score": self.trace_gate,
-                          "exit_score": self.trace_exit,
-                          "goal_dist_m": self.trace_goal_dist},
+                "trace": {
+                    "reid_score": self.trace_score,
+                    "goal_px": self.trace_goal_px,
+                    "gate_score": self.trace_gate,
+                    "exit_score": self.trace_exit,
+                    "goal_dist_m": self.trace_goal_dist,
+                },
             },
         }
 
@@ -359,8 +389,9 @@ def table_row(label: str, summary: Mapping[str, Any]) -> str:
     return f"| {label} | {ne_s} | {summary['max_st']:.3f} | {sr} | {spl} | {n} |"
 
 
-TABLE_HEADER = ("| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |\n"
-                "| --- | --- | --- | --- | --- | --- |")
+TABLE_HEADER = (
+    "| variant | NE (m) | Max-ST | SR [95% CI] | SPL [95% CI] | episodes |\n| --- | --- | --- | --- | --- | --- |"
+)
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -381,8 +412,17 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-register(AgentSpec("modiin", "the Mod-IIN agent (Krantz et al. 2023) and its ablations", make_agent, add_arguments,
-                   make_observer=Attribution, summarize=summarize, worker_init=worker_init))
+register(
+    AgentSpec(
+        "modiin",
+        "the Mod-IIN agent (Krantz et al. 2023) and its ablations",
+        make_agent,
+        add_arguments,
+        make_observer=Attribution,
+        summarize=summarize,
+        worker_init=worker_init,
+    )
+)
 
 
 def comparison_tables(out_dirs: list[str]) -> str:

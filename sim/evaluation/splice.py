@@ -44,9 +44,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from sim.evaluation.runner import RECORDS, SUMMARY, _json_safe, read_records
 
@@ -193,8 +194,13 @@ def summarize(records: list[dict[str, Any]], base: str, rerun: str) -> dict[str,
 
     summary = aggregate([{**r, "ne": float(r["ne"])} for r in records])
     agents = sorted({str(r.get("agent")) for r in records})
-    summary.update({"agent": agents[0] if len(agents) == 1 else agents, "spliced_from": {"base": base, "rerun": rerun},
-                    "errors": sum(1 for r in records if r.get("error"))})
+    summary.update(
+        {
+            "agent": agents[0] if len(agents) == 1 else agents,
+            "spliced_from": {"base": base, "rerun": rerun},
+            "errors": sum(1 for r in records if r.get("error")),
+        }
+    )
     spec = get_spec(agents[0]) if len(agents) == 1 else None
     if spec is not None and spec.summarize:
         summary.update(dict(spec.summarize(records)))
@@ -208,17 +214,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out")
     p.add_argument("--list", action="store_true", help="print the base episodes where the change acts and stop")
     p.add_argument("--ended-in", default="exhausted", help="the base episodes' final mode from which the change acts")
-    p.add_argument("--oscillation", type=int, default=None, metavar="N",
-                   help="instead: the change acts after the base's first N alternating turns on the spot")
-    p.add_argument("--from-step", type=int, default=None, metavar="N",
-                   help="instead: the change can act only from step N on, in base episodes longer than N steps "
-                        "(the last resort at the deadline: step_budget - deadline_window_steps, 800)")
-    p.add_argument("--rejected", action="store_true",
-                   help="instead: the change acts only where the base rejected a goal candidate "
-                        "(policy.unreachable_forgive)")
-    p.add_argument("--in-mode", default=None, metavar="MODE",
-                   help="instead: the change acts only where the base spent a step in MODE "
-                        "(a look from the verify ring, policy.verify_ring_tau_ratio: verify)")
+    p.add_argument(
+        "--oscillation",
+        type=int,
+        default=None,
+        metavar="N",
+        help="instead: the change acts after the base's first N alternating turns on the spot",
+    )
+    p.add_argument(
+        "--from-step",
+        type=int,
+        default=None,
+        metavar="N",
+        help="instead: the change can act only from step N on, in base episodes longer than N steps "
+        "(the last resort at the deadline: step_budget - deadline_window_steps, 800)",
+    )
+    p.add_argument(
+        "--rejected",
+        action="store_true",
+        help="instead: the change acts only where the base rejected a goal candidate (policy.unreachable_forgive)",
+    )
+    p.add_argument(
+        "--in-mode",
+        default=None,
+        metavar="MODE",
+        help="instead: the change acts only where the base spent a step in MODE "
+        "(a look from the verify ring, policy.verify_ring_tau_ratio: verify)",
+    )
     args = p.parse_args(argv)
     if args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
@@ -239,8 +261,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     base, rerun = read_records(Path(args.base)), read_records(Path(args.rerun))
     missing = missing_reruns(base, rerun, acts_at)
     if missing:
-        print(f"error: {len(missing)} base episode(s) where the change acts have no re-run: "
-              f"{', '.join(missing[:6])}", file=sys.stderr)
+        print(
+            f"error: {len(missing)} base episode(s) where the change acts have no re-run: {', '.join(missing[:6])}",
+            file=sys.stderr,
+        )
         return 2
     try:
         records = splice(base, rerun, acts_at)

@@ -17,6 +17,7 @@ from tests.helpers.agent_scenes import DECOY_RGB, GOAL_RGB
 
 class NoMatcher:
     """A matcher that never matches (re-ID is the oracle in these tests)."""
+
     name = "none"
 
     def extract(self, rgb, max_keypoints):
@@ -64,11 +65,19 @@ def painted_agent(world, goal_score, **policy):
     (the shortlist's rank) is the number of such pixels, the decoy's counting half. Matches sit on
     the painted pixels; localisation lifts them (the goal image's mask is all of it).
     Returns (agent, the scores computed without the gate)."""
-    pol = dict(reid_source="matcher", localisation_source="goal_mask", potential_tau_ratio=0.5,
-               verify_ring_tau_ratio=0.5, last_resort=True)
+    pol = dict(
+        reid_source="matcher",
+        localisation_source="goal_mask",
+        potential_tau_ratio=0.5,
+        verify_ring_tau_ratio=0.5,
+        last_resort=True,
+    )
     pol.update(policy)
-    cfg = AgentConfig(reid=ReIDConfig(tau=100.0, gate=False), policy=PolicyConfig(**pol),
-                      segmentation=SegmentationConfig(source="oracle"))
+    cfg = AgentConfig(
+        reid=ReIDConfig(tau=100.0, gate=False),
+        policy=PolicyConfig(**pol),
+        segmentation=SegmentationConfig(source="oracle"),
+    )
     agent = ModIINAgent(cfg, matcher=NoMatcher(), goal_mask_fn=lambda img: np.ones(img.shape[:2], bool))
     ungated = []
 

@@ -10,39 +10,23 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import sim.episode_gen as episode_gen
-from agent.types import Intrinsics, Observation, Pose2D
+from agent.types import Pose2D
 from sim.backend import SimBackend
 from sim.episode_gen import EpisodeGenConfig, generate_episode_set
 from sim.episodes import load_episode_set
-from sim.oracle_agent import OracleAgent
+from sim.oracle_agent import run_blind
 from sim.world import SimWorld
 
-_BLANK = np.zeros((1, 1, 3), np.uint8)
 HOMES = 4  # per split, one episode each
 
 
 def _oracle_result(world: SimWorld, episode, goal_path: Path):
-    """The oracle agent on a stored episode; it never looks at images, so a blank observation
-    stands in for the renders (``test_sim_oracle_episode`` runs it with real ones)."""
-    backend = SimBackend.for_episode(world, episode, goal_path)
-    agent = OracleAgent(backend.oracle)
-    agent.reset(_BLANK)
-    intr = Intrinsics(1.0, 1.0, 0.5, 0.5, 1, 1)
-    while not backend.done:
-        obs = Observation(
-            rgb=_BLANK,
-            depth_m=np.zeros((1, 1), np.float32),
-            pose=Pose2D(),
-            intrinsics=intr,
-            goal_image=_BLANK,
-            step=backend.steps,
-        )
-        backend.apply(agent.act(obs))
-    return backend.result()
+    """The oracle agent on a stored episode, without renders (``test_sim_oracle_episode`` runs
+    it with real ones)."""
+    return run_blind(SimBackend.for_episode(world, episode, goal_path))
 
 
 @pytest.mark.parametrize("split,seed", [("train", 901), ("val", 901)])

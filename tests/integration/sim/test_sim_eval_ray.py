@@ -61,7 +61,8 @@ def cluster():
 
 
 def test_two_node_cluster_gives_the_local_records_and_resumes_after_an_interrupted_driver(
-        two_homes, local_records, cluster, tmp_path) -> None:
+    two_homes, local_records, cluster, tmp_path
+) -> None:
     es = load_episode_set(two_homes)
     assert len({e.scene_seed for e in es.episodes}) == 2 and len(es) == 3
     out = tmp_path / "ray"
@@ -70,12 +71,19 @@ def test_two_node_cluster_gives_the_local_records_and_resumes_after_an_interrupt
         raise KeyboardInterrupt  # Ctrl-C right after the first record is written
 
     with pytest.raises(KeyboardInterrupt):
-        run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False,
-                       ray=RayOptions(address=cluster.address, on_record=interrupt))
+        run_evaluation(
+            two_homes,
+            "oracle",
+            argparse.Namespace(),
+            out,
+            progress=False,
+            ray=RayOptions(address=cluster.address, on_record=interrupt),
+        )
     assert not ray.is_initialized()  # the driver cancelled its tasks and disconnected
     assert len(_ids_in_file(out)) == 1
-    summary = run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False,
-                             ray=RayOptions(address=cluster.address))
+    summary = run_evaluation(
+        two_homes, "oracle", argparse.Namespace(), out, progress=False, ray=RayOptions(address=cluster.address)
+    )
     assert not ray.is_initialized()
     ids = _ids_in_file(out)
     assert len(ids) == len(set(ids)) == 3
@@ -83,8 +91,9 @@ def test_two_node_cluster_gives_the_local_records_and_resumes_after_an_interrupt
     assert summary["episodes"] == 3 and summary["errors"] == 0 and summary["sr"] == 1.0
 
 
-def test_killed_workers_are_retried_then_recorded_as_errors_each_episode_once(two_homes, local_records, cluster,
-                                                                             tmp_path, caplog) -> None:
+def test_killed_workers_are_retried_then_recorded_as_errors_each_episode_once(
+    two_homes, local_records, cluster, tmp_path, caplog
+) -> None:
     es = load_episode_set(two_homes)
     first_home = [e.episode_id for e in es.episodes if e.scene_seed == es.episodes[0].scene_seed]
     lone = next(e for e in es.episodes if e.episode_id not in first_home)
@@ -93,7 +102,9 @@ def test_killed_workers_are_retried_then_recorded_as_errors_each_episode_once(tw
     # The first home's worker process is SIGKILLed after its first episode, once: the retry
     # runs the episodes without a record. The other home's worker dies on every attempt:
     # after the one allowed retry its episode is recorded with the error.
-    options = RayOptions(address=cluster.address, max_retries=1, crash_before=((first_home[1], 1), (lone.episode_id, 99)))
+    options = RayOptions(
+        address=cluster.address, max_retries=1, crash_before=((first_home[1], 1), (lone.episode_id, 99))
+    )
     with caplog.at_level(logging.WARNING, logger="sim.evaluation.ray_backend"):
         summary = run_evaluation(two_homes, "oracle", argparse.Namespace(), out, progress=False, ray=options)
     ids = _ids_in_file(out)
@@ -132,8 +143,9 @@ def test_calibration_pairs_scored_on_the_cluster_equal_the_local_scores(two_home
     matcher = make_matcher(cfg)
     pairs = make_pairs([0, 1, 1, 2, 3, 4], max_negatives=0).pairs
     want = score_pairs(matcher, [matcher.extract(x, cfg.goal_max_keypoints) for x in rgbs], pairs)
-    conf, count, stats = score_pairs_on_ray(RayOptions(address=cluster.address), cfg, [f"i{k}" for k in range(6)],
-                                            pngs, pairs, chunk_pairs=4)
+    conf, count, stats = score_pairs_on_ray(
+        RayOptions(address=cluster.address), cfg, [f"i{k}" for k in range(6)], pngs, pairs, chunk_pairs=4
+    )
     assert stats["tasks"] == 4 and len(pairs) == 15
     np.testing.assert_array_equal(conf, want[0])
     np.testing.assert_array_equal(count, want[1])

@@ -32,8 +32,11 @@ def test_oracle_reid_and_localisation_reach_the_goal(episode):
     es, ep, world = episode
     backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep), max_steps=400)
     cfg = AgentConfig(policy=PolicyConfig(reid_source="oracle", localisation_source="oracle"))
-    agent = ModIINAgent(cfg, oracle_reid=lambda obs: int(backend.oracle.goal_mask().sum()) >= 400,
-                        oracle_ego_mask=lambda obs: backend.oracle.goal_mask())
+    agent = ModIINAgent(
+        cfg,
+        oracle_reid=lambda obs: int(backend.oracle.goal_mask().sum()) >= 400,
+        oracle_ego_mask=lambda obs: backend.oracle.goal_mask(),
+    )
     obs = backend.reset()
     agent.reset(obs.goal_image)
     while not backend.done:
@@ -76,9 +79,18 @@ def test_eval_plugin_runs_an_episode(episode, tmp_path):
     from sim.evaluation.runner import run_evaluation
 
     es, ep, _ = episode
-    args = argparse.Namespace(modiin_config="sim", modiin_reid="oracle", modiin_loc="oracle", modiin_matcher=None,
-                              modiin_tau=None, modiin_set=["policy.look_around_turns=0"], modiin_oracle_min_px=400,
-                              modiin_seen_px=2300, modiin_threads=1, workers=1)
+    args = argparse.Namespace(
+        modiin_config="sim",
+        modiin_reid="oracle",
+        modiin_loc="oracle",
+        modiin_matcher=None,
+        modiin_tau=None,
+        modiin_set=["policy.look_around_turns=0"],
+        modiin_oracle_min_px=400,
+        modiin_seen_px=2300,
+        modiin_threads=1,
+        workers=1,
+    )
     summary = run_evaluation(es.directory, "modiin", args, tmp_path, limit=1, progress=False, fail_fast=True)
     assert summary["episodes"] == 1 and "failure_causes" in summary and "table_md" in summary
 

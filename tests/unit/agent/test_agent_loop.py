@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from agent.loop import LoopError, LoopStep, run_loop
-from agent.types import Action, AgentRecord, BackendError, Intrinsics, Observation, Pose2D
+from agent.types import Action, BackendError, Intrinsics, Observation, Pose2D
+from tests.helpers.scripted_agent import ScriptedAgent
 
 K = Intrinsics(8.0, 8.0, 4.0, 4.0, 8, 8)
 
@@ -49,24 +50,6 @@ class Backend:
         pass
 
 
-class Agent:
-    """Forward, left, forward, ... and STOP after ``stop_after`` actions."""
-
-    def __init__(self, stop_after: int) -> None:
-        self.stop_after = stop_after
-        self.n = 0
-        self.last_record: AgentRecord | None = None
-
-    def reset(self, goal_image: np.ndarray) -> None:
-        self.n = 0
-
-    def act(self, obs: Observation) -> Action:
-        a = Action.STOP if self.n >= self.stop_after else (Action.MOVE_FORWARD if self.n % 2 == 0 else Action.TURN_LEFT)
-        self.last_record = AgentRecord(step=obs.step, action=a, pose=obs.pose, mode="explore", reason=str(self.n))
-        self.n += 1
-        return a
-
-
 class Collect:
     def __init__(self) -> None:
         self.steps: list[LoopStep] = []
@@ -88,7 +71,7 @@ class BeforeApply(Collect):
 
 
 def test_agent_stop_ends_the_loop_and_every_sink_sees_every_step() -> None:
-    backend, agent = Backend(), Agent(stop_after=4)
+    backend, agent = Backend(), ScriptedAgent(stop_after=4)
     a, b = Collect(), Collect()
     result = run_loop(backend, agent, 1000, sinks=(a, b))
     assert result.end == "agent" and result.n_steps == 5 and result.last_action == Action.STOP
@@ -102,31 +85,33 @@ def test_agent_stop_ends_the_loop_and_every_sink_sees_every_step() -> None:
     assert [s.step for s in b.steps] == [0, 1, 2, 3, 4] and backend.applied == [s.action for s in a.steps]
     assert a.steps[1].obs.step == 1 and result.first_action_s is not None
     assert backend.observed == 4  # nothing is observed after STOP
-    assert result.act_s > 0 and result.backend_s > 0 and result.last_record.reason == "4"
+    assert result.act_s > 0 and result.backend_s > 0 and result.last_record.reason == "scripted step 4"
 
 
 def test_before_apply_sinks_see_the_frame_the_agent_acted_on() -> None:
     backend = Backend()
     sink = BeforeApply(backend)
-    run_loop(backend, Agent(stop_after=3), 1000, sinks=(sink,))
+    run_loop(backend, ScriptedAgent(stop_after=3), 1000, sinks=(sink,))
     # before step k's apply, k actions had been applied: the world is still as the agent saw it
     assert sink.applied_before == [0, 1, 2, 3] and [s.step for s in sink.steps] == [0, 1, 2, 3]
 
 
 def test_budget_and_operator_stop() -> None:
     backend = Backend()
-    result = run_loop(backend, Agent(stop_after=10_000), 7)
+    result = run_loop(backend, ScriptedAgent(stop_after=10_000), 7)
     assert result.end == "budget" and result.n_steps == 7
     assert backend.observed == 6 and backend.log[-1] == "apply"  # the spent budget is not observed again
     seen = Collect()
     backend = Backend()
-    result = run_loop(backend, Agent(stop_after=10_000), 1000, sinks=(seen,), should_stop=lambda: len(seen.steps) >= 3)
+    result = run_loop(
+        backend, ScriptedAgent(stop_after=10_000), 1000, sinks=(seen,), should_stop=lambda: len(seen.steps) >= 3
+    )
     assert result.end == "stopped" and result.n_steps == 3 and len(backend.applied) == 3  # nothing sent after the stop
 
 
 def test_a_backend_error_keeps_what_was_done() -> None:
     backend = Backend(fail_at=2)
     with pytest.raises(LoopError) as err:
-        run_loop(backend, Agent(stop_after=100), 1000)
+        run_loop(backend, ScriptedAgent(stop_after=100), 1000)
     assert isinstance(err.value.cause, BackendError) and err.value.result.n_steps == 2
     assert err.value.result.end == "error"

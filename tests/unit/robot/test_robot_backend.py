@@ -20,14 +20,17 @@ from tests.helpers.polling import poll
 FWD, LEFT, RIGHT, STOP = Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT, Action.STOP
 
 
-def run_loop(backend, actions, before_step: Callable[[int], None] | None = None) -> tuple[str | None, int]:
-    """The project's loop with a scripted agent; returns (failure reason or None, actions applied)."""
+def run_loop(
+    backend, actions, at_step: int | None = None, do: Callable[[], None] | None = None
+) -> tuple[str | None, int]:
+    """The project's loop with a scripted agent, calling ``do()`` just before action ``at_step``
+    is applied; returns (failure reason or None, actions applied)."""
     applied = 0
     try:
         backend.reset()
         for i, action in enumerate(actions):
-            if before_step is not None:
-                before_step(i)
+            if i == at_step and do is not None:
+                do()
             backend.apply(action)
             applied += 1
             if action == STOP:
@@ -62,6 +65,7 @@ def test_reset_posture_head_and_first_observation(make_fake, make_backend) -> No
     assert np.abs(obs.rgb.astype(int) - rgb).mean() < 10
 
 
+@pytest.mark.slow
 def test_actions_move_the_robot_and_poses_are_relative_to_the_start(make_fake, make_backend) -> None:
     fake = make_fake()
     backend = make_backend(fake)
@@ -112,6 +116,7 @@ def test_the_echo_may_come_only_from_observations(make_fake, make_backend) -> No
     assert [a["step"] for a in fake.actions] == [6, 7, 8, 9]
 
 
+@pytest.mark.slow
 def test_slow_moves_within_the_ack_timeout_succeed(make_fake, make_backend) -> None:
     fake = make_fake(knobs=FakeKnobs(linear_speed_m_s=0.15, angular_speed_rad_s=0.4))  # ~1.7 s and ~1.3 s
     backend = make_backend(fake, ack_timeout_s=6.0)
@@ -141,12 +146,11 @@ def test_runstop_between_steps_refuses_the_next_move(make_fake, make_backend) ->
     fake = make_fake()
     backend = make_backend(fake)
 
-    def press_runstop(i: int) -> None:
-        if i == 2:
-            fake.knobs.runstopped = True
-            poll(lambda: backend._link.state.is_runstopped)  # the client has seen it
+    def press_runstop() -> None:
+        fake.knobs.runstopped = True
+        poll(lambda: backend._link.state.is_runstopped)  # the client has seen it
 
-    reason, applied = run_loop(backend, [FWD, LEFT, FWD, FWD], before_step=press_runstop)
+    reason, applied = run_loop(backend, [FWD, LEFT, FWD, FWD], 2, press_runstop)
     assert (reason, applied) == ("runstopped", 2)
     assert len([a for a in fake.actions if "xyt" in a]) == 2
 
@@ -155,17 +159,16 @@ def test_runstop_during_a_move_ends_the_wait_at_once(make_fake, make_backend) ->
     fake = make_fake(knobs=FakeKnobs(linear_speed_m_s=0.05))  # a 5 s move
     backend = make_backend(fake, ack_timeout_s=60.0)
 
-    def press_runstop_mid_move(i: int) -> None:
-        if i == 0:
-            import threading
+    def press_runstop_mid_move() -> None:
+        import threading
 
-            def later() -> None:
-                poll(lambda: fake.pose_world.distance_to(Pose2D(0.5, 0.3, 0.4)) > 0.02)
-                fake.knobs.runstopped = True
+        def later() -> None:
+            poll(lambda: fake.pose_world.distance_to(Pose2D(0.5, 0.3, 0.4)) > 0.02)
+            fake.knobs.runstopped = True
 
-            threading.Thread(target=later, daemon=True).start()
+        threading.Thread(target=later, daemon=True).start()
 
-    reason, applied = run_loop(backend, [FWD], before_step=press_runstop_mid_move)
+    reason, applied = run_loop(backend, [FWD], 0, press_runstop_mid_move)
     assert (reason, applied) == ("runstopped", 0)  # not ack_timeout: the wait noticed the runstop
     assert not any("xyt" in a for a in fake.actions)  # the move is frozen on the robot, never echoed
 
@@ -174,11 +177,7 @@ def test_silence_is_a_disconnect(make_fake, make_backend) -> None:
     fake = make_fake()
     backend = make_backend(fake)
 
-    def go_silent(i: int) -> None:
-        if i == 1:
-            fake.knobs.silent = True
-
-    reason, applied = run_loop(backend, [FWD, FWD, FWD], before_step=go_silent)
+    reason, applied = run_loop(backend, [FWD, FWD, FWD], 1, lambda: setattr(fake.knobs, "silent", True))
     assert (reason, applied) == ("disconnected", 1)
 
 
@@ -193,15 +192,12 @@ def test_silence_during_a_move_is_a_disconnect_not_an_ack_timeout(make_fake, mak
     backend.close()
 
 
+@pytest.mark.slow
 def test_dropped_acknowledgements_time_out(make_fake, make_backend) -> None:
     fake = make_fake()
     backend = make_backend(fake, ack_timeout_s=1.5, resend_interval_s=0.5)
 
-    def drop_acks(i: int) -> None:
-        if i == 1:
-            fake.knobs.drop_acks = True
-
-    reason, applied = run_loop(backend, [FWD, FWD, FWD], before_step=drop_acks)
+    reason, applied = run_loop(backend, [FWD, FWD, FWD], 1, lambda: setattr(fake.knobs, "drop_acks", True))
     assert (reason, applied) == ("ack_timeout", 1)
     # re-sends are the same absolute goal with the same step: the robot moved only once
     assert len([a for a in fake.actions if "xyt" in a]) == 2

@@ -52,6 +52,7 @@ def run_moves(fake: FakeStretch, backend) -> list[str | None]:
     return verdicts
 
 
+@pytest.mark.slow
 def test_the_old_rule_takes_observations_from_before_the_move_ended(make_fake, make_backend) -> None:
     """The defect, reproduced: the first observation that echoes a step is taken."""
     fake = make_fake(WORLD)
@@ -60,6 +61,7 @@ def test_the_old_rule_takes_observations_from_before_the_move_ended(make_fake, m
     assert any(v is not None for v in verdicts), verdicts
 
 
+@pytest.mark.slow
 def test_observations_are_captured_after_the_acknowledgement(make_fake, make_backend) -> None:
     fake = make_fake(WORLD)
     backend = make_backend(fake)
@@ -93,6 +95,7 @@ def test_no_observation_after_the_acknowledgement_fails_clearly(make_fake, make_
     assert "after the acknowledgement of step" in str(info.value) and "no observation has echoed it" in str(info.value)
 
 
+@pytest.mark.slow
 def test_the_idealised_fake_still_serves(make_fake, make_backend) -> None:
     fake = make_fake(WORLD, knobs=FakeKnobs(faithful=False))
     assert run_moves(fake, make_backend(fake)) == [None] * len(ACTIONS)

@@ -112,9 +112,13 @@ def test_identical_lists_every_difference_but_timings(tmp_path):
 
     from sim.evaluation.compare import identical, main
 
-    base = {"episode_id": "e1", "success": True, "timing": {"wall_s": 1.0},
-            "modiin": {"final_reason": "a", "median_ms": {"total": 3.0}, "trace": {"s": [1, 2]}},
-            "agent_config": {"policy": {"verify": False}}}
+    base = {
+        "episode_id": "e1",
+        "success": True,
+        "timing": {"wall_s": 1.0},
+        "modiin": {"final_reason": "a", "median_ms": {"total": 3.0}, "trace": {"s": [1, 2]}},
+        "agent_config": {"policy": {"verify": False}},
+    }
     same = json.loads(json.dumps(base))
     same["timing"]["wall_s"] = 9.0  # timings never count
     same["modiin"]["median_ms"]["total"] = 4.0
@@ -126,8 +130,10 @@ def test_identical_lists_every_difference_but_timings(tmp_path):
         (tmp_path / name / "episodes.jsonl").write_text(json.dumps(rec) + "\n")
     assert identical(str(tmp_path / "a"), str(tmp_path / "b")) == (1, [])
     n, lines = identical(str(tmp_path / "a"), str(tmp_path / "c"))
-    assert n == 1 and lines == ["e1: agent_config.policy.verify (only in the first): false -> null",
-                                "e1: modiin.trace.s[1]: 2 -> 3"]
+    assert n == 1 and lines == [
+        "e1: agent_config.policy.verify (only in the first): false -> null",
+        "e1: modiin.trace.s[1]: 2 -> 3",
+    ]
     assert identical(str(tmp_path / "a"), str(tmp_path / "c"), ["agent_config"])[1] == ["e1: modiin.trace.s[1]: 2 -> 3"]
     assert main([str(tmp_path / "a"), str(tmp_path / "b"), "--identical"]) == 0
     assert main([str(tmp_path / "a"), str(tmp_path / "c"), "--identical"]) == 1

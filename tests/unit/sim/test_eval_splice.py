@@ -12,11 +12,23 @@ def rec(eid, actions, final_mode, success=False, home=1):
     for a in actions:
         x += 0.25 if a == "MOVE_FORWARD" else 0.0
         poses.append([x, 0.0, 0.0])
-    return {"episode_id": eid, "scene_seed": home, "agent": "oracle", "category": "bed", "success": success,
-            "spl": 0.5 if success else 0.0, "ne": 0.2 if success else 3.0, "steps": len(actions),
-            "max_steps_reached": False, "called_stop": actions[-1:] == ["STOP"], "path_length_m": x,
-            "shortest_path_m": 1.0, "difficulty": "easy",
-            "trajectory": {"poses_world": poses, "actions": actions}, "modiin": {"final_mode": final_mode}}
+    return {
+        "episode_id": eid,
+        "scene_seed": home,
+        "agent": "oracle",
+        "category": "bed",
+        "success": success,
+        "spl": 0.5 if success else 0.0,
+        "ne": 0.2 if success else 3.0,
+        "steps": len(actions),
+        "max_steps_reached": False,
+        "called_stop": actions[-1:] == ["STOP"],
+        "path_length_m": x,
+        "shortest_path_m": 1.0,
+        "difficulty": "easy",
+        "trajectory": {"poses_world": poses, "actions": actions},
+        "modiin": {"final_mode": final_mode},
+    }
 
 
 F, L, S = "MOVE_FORWARD", "TURN_LEFT", "STOP"
@@ -95,8 +107,9 @@ def test_the_splice_and_the_agent_count_the_same_run():
 
     rng = random.Random(3)
     for _ in range(200):
-        actions = [rng.choice([Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.MOVE_FORWARD])
-                   for _ in range(30)]
+        actions = [
+            rng.choice([Action.TURN_LEFT, Action.TURN_RIGHT, Action.TURN_RIGHT, Action.MOVE_FORWARD]) for _ in range(30)
+        ]
         m, fired = MotionState(), None
         for k, a in enumerate(actions):  # the guard acts before action k + 1 when the run reached 5
             m = after_action(m, a)
@@ -125,7 +138,9 @@ def test_the_deadline_splices_the_episodes_that_went_past_its_first_step(tmp_pat
     for name, records in (("base", [long_, short]), ("rerun", [rec("long", [F, L, F, F, S], "stopped", success=True)])):
         (tmp_path / name).mkdir()
         (tmp_path / name / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
-    assert main([str(tmp_path / "base"), str(tmp_path / "rerun"), "--out", str(tmp_path / "out"), "--from-step", "3"]) == 0
+    assert (
+        main([str(tmp_path / "base"), str(tmp_path / "rerun"), "--out", str(tmp_path / "out"), "--from-step", "3"]) == 0
+    )
     got = [json.loads(x) for x in (tmp_path / "out" / "episodes.jsonl").read_text().splitlines()]
     assert [r["success"] for r in got] == [True, True]
 
@@ -134,7 +149,9 @@ def test_forgiving_splices_only_where_the_base_rejected_a_candidate(tmp_path, ca
     from sim.evaluation.splice import ActsAt
 
     gave_up = rec("g", [L, L, F, L, S], "exhausted")
-    gave_up["modiin"].update(candidates=[{"id": 0, "state": "rejected"}], trace={"reid_score": [0.0, 0.0, 3.5, 60.0, 0.0]})
+    gave_up["modiin"].update(
+        candidates=[{"id": 0, "state": "rejected"}], trace={"reid_score": [0.0, 0.0, 3.5, 60.0, 0.0]}
+    )
     kept = rec("k", [F, F, S], "stopped", success=True, home=2)
     kept["modiin"].update(candidates=[{"id": 0, "state": "confirmed"}], trace={"reid_score": [80.0, 90.0, 95.0]})
     at = ActsAt(rejected=True)
@@ -161,8 +178,9 @@ def test_a_change_in_one_mode_splices_only_where_the_base_spent_a_step_in_it(tmp
     from sim.evaluation.splice import ActsAt
 
     verified = rec("v", [L, L, F, L, S], "stopped")
-    verified["modiin"].update(modes={"look_around": 2, "verify": 2, "stopped": 1},
-                              trace={"reid_score": [0.0, 0.0, 0.0, 45.0, 0.0]})
+    verified["modiin"].update(
+        modes={"look_around": 2, "verify": 2, "stopped": 1}, trace={"reid_score": [0.0, 0.0, 0.0, 45.0, 0.0]}
+    )
     direct = rec("d", [F, F, S], "stopped", success=True, home=2)
     direct["modiin"].update(modes={"approach": 2, "stopped": 1}, trace={"reid_score": [90.0, 90.0, 95.0]})
     at = ActsAt(in_mode="verify")

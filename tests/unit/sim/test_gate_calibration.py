@@ -36,6 +36,7 @@ def test_frames_come_from_train_records_only(tmp_path: Path) -> None:
         gc.frames_from_records([str(p)])
 
 
+@pytest.mark.slow
 def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, monkeypatch) -> None:
     # two "instances", three views each: crops of two natural images (XFeat finds plenty in both)
     cache = tmp_path / "images"

@@ -8,8 +8,18 @@ from sim.evaluation.modiin import Attribution, build_config, failure_distributio
 
 
 def ns(**kw):
-    base = dict(modiin_config="sim", modiin_reid="conf", modiin_loc="mask", modiin_matcher=None, modiin_tau=None,
-                modiin_set=[], modiin_oracle_min_px=400, modiin_seen_px=2300, modiin_threads=None, workers=2)
+    base = dict(
+        modiin_config="sim",
+        modiin_reid="conf",
+        modiin_loc="mask",
+        modiin_matcher=None,
+        modiin_tau=None,
+        modiin_set=[],
+        modiin_oracle_min_px=400,
+        modiin_seen_px=2300,
+        modiin_threads=None,
+        workers=2,
+    )
     base.update(kw)
     return argparse.Namespace(**base)
 
@@ -65,6 +75,7 @@ def attribution(steps):
     a.steps = a.seen_steps = a.det_seen = a.det_unseen = a.planner_errors = a.candidate_on_goal_steps = 0
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
+
     a.modes, a.timings = Counter(), {}
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
@@ -93,14 +104,20 @@ def test_attribution_classes():
     # recognised with the goal in view but no candidate ever landed on it: localisation
     assert attribution([(5000, True, []), (0, False, [])]).cause(False) == "localisation"
     trace = attribution([(5000, True, ON_GOAL), (0, False, [])]).finish({"success": False})["modiin"]["trace"]
-    assert trace == {"reid_score": [100.0, 1.0], "goal_px": [5000, 0], "gate_score": [90.0, 90.0],
-                     "exit_score": [None, None], "goal_dist_m": [3.0, 3.0]}
+    assert trace == {
+        "reid_score": [100.0, 1.0],
+        "goal_px": [5000, 0],
+        "gate_score": [90.0, 90.0],
+        "exit_score": [None, None],
+        "goal_dist_m": [3.0, 3.0],
+    }
 
 
 def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
     # goal in view and gated; goal in view and matched; out of view and gated
     out = attribution([(5000, False, [], False), (5000, True, ON_GOAL, True), (0, False, [], False)]).finish(
-        {"success": False})["modiin"]
+        {"success": False}
+    )["modiin"]
     assert out["full_matcher_steps"] == 1 and out["gated_goal_in_view_steps"] == 1
     assert out["trace"]["gate_score"] == [3.0, 90.0, 3.0] and out["trace"]["reid_score"] == [0.0, 100.0, 0.0]
 
@@ -119,20 +136,45 @@ def test_attribution_records_the_step_of_the_second_look():
 
 
 def test_distribution_and_table():
-    recs = [dict(success=True, failure_cause=None), dict(success=False, failure_cause="exploration"),
-            dict(success=False, failure_cause="exploration"), dict(success=False, failure_cause="localisation")]
+    recs = [
+        dict(success=True, failure_cause=None),
+        dict(success=False, failure_cause="exploration"),
+        dict(success=False, failure_cause="exploration"),
+        dict(success=False, failure_cause="localisation"),
+    ]
     d = failure_distribution(recs)
     assert d["failed"] == 3 and d["counts"] == {"exploration": 2, "localisation": 1}
     assert d["shares"]["exploration"] == pytest.approx(0.667, abs=1e-3)
     row = table_row("x", {"ne": 1.234, "max_st": 0.1, "sr": 0.5, "spl": 0.25, "episodes": 4})
     assert row == "| x | 1.23 | 0.100 | 0.500 | 0.250 | 4 |"
-    full = [dict(r, ne=1.0, spl=0.1, max_steps_reached=False, category="chair", variant="v",
-                 modiin={"median_ms": {"total": 10.0}}) for r in recs]
+    full = [
+        dict(
+            r,
+            ne=1.0,
+            spl=0.1,
+            max_steps_reached=False,
+            category="chair",
+            variant="v",
+            modiin={"median_ms": {"total": 10.0}},
+        )
+        for r in recs
+    ]
     s = summarize(full)
     assert s["agent_median_ms_per_step"]["total"] == 10.0 and "| v |" in s["table_md"]
 
 
 def test_table_row_with_home_intervals():
-    row = table_row("x", {"ne": 1.0, "max_st": 0.0, "sr": 0.5, "spl": 0.25, "episodes": 4, "homes": 2,
-                          "sr_ci95": [0.25, 0.75], "spl_ci95": [0.1, 0.4]})
+    row = table_row(
+        "x",
+        {
+            "ne": 1.0,
+            "max_st": 0.0,
+            "sr": 0.5,
+            "spl": 0.25,
+            "episodes": 4,
+            "homes": 2,
+            "sr_ci95": [0.25, 0.75],
+            "spl_ci95": [0.1, 0.4],
+        },
+    )
     assert row == "| x | 1.00 | 0.000 | 0.500 [0.25, 0.75] | 0.250 [0.10, 0.40] | 4 (2 homes) |"

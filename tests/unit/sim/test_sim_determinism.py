@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from sim.episode_gen import EpisodeGenConfig, generate_episode_set
 from sim.episodes import load_episode_set
 
 
+@pytest.mark.slow
 def test_same_seed_gives_identical_episode_sets(tmp_path: Path) -> None:
     cfg = EpisodeGenConfig(episodes_per_scene=2)
     a, b = tmp_path / "a", tmp_path / "b"

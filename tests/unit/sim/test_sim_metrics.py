@@ -27,27 +27,14 @@ def test_success_boundary_is_inclusive() -> None:
 
 
 def test_episode_metrics_combines_them() -> None:
+    episode = dict(viewpoints_xy_m=VP, max_steps=1000, shortest_path_m=4.5)
     m = episode_metrics(
-        called_stop=True,
-        stop_xy_m=(2.05, 1.0),
-        viewpoints_xy_m=VP,
-        steps=40,
-        max_steps=1000,
-        path_length_m=6.0,
-        shortest_path_m=4.5,
-        stop_geodesic_m=0.05,
+        called_stop=True, stop_xy_m=(2.05, 1.0), steps=40, path_length_m=6.0, stop_geodesic_m=0.05, **episode
     )
     assert m.success and m.spl == pytest.approx(0.75) and m.ne_m == 0.05 and not m.max_steps_reached
     assert m.stop_to_viewpoint_m == pytest.approx(0.05)
     fail = episode_metrics(
-        called_stop=False,
-        stop_xy_m=(5.0, 5.0),
-        viewpoints_xy_m=VP,
-        steps=1000,
-        max_steps=1000,
-        path_length_m=30.0,
-        shortest_path_m=4.5,
-        stop_geodesic_m=3.2,
+        called_stop=False, stop_xy_m=(5.0, 5.0), steps=1000, path_length_m=30.0, stop_geodesic_m=3.2, **episode
     )
     assert not fail.success and fail.spl == 0.0 and fail.ne_m == 3.2 and fail.max_steps_reached
 
