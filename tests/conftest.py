@@ -13,6 +13,11 @@ import pytest
 # Hypothesis keeps its example database in ./.hypothesis unless told otherwise (read when first
 # needed, after this file is imported).
 os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gettempdir(), "imgnav-hypothesis"))
+# Torch's OpenMP threads sleep, not spin, while they wait, as in `imgnav console`
+# (console.agents.passive_openmp_wait): with two xdist workers on two cores, spinning threads
+# stall each other (a whole console run took 68 s instead of 26 s). Only waiting changes, not
+# results. libgomp reads this when torch is imported, which is after this file.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 INTEGRATION = Path(__file__).parent / "integration"
 
