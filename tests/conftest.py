@@ -1,6 +1,7 @@
-"""Suite-wide settings: nothing is written into the checkout, and every test under
+"""Suite-wide settings: nothing is written into the checkout; every test under
 tests/integration is marked ``integration`` (real PyBullet homes, servers, a browser), so that
-``-m "not integration"`` leaves them out."""
+``-m "not integration"`` leaves them out; tests sharing a module's own module-scoped fixture
+form one xdist group."""
 
 from __future__ import annotations
 
@@ -26,3 +27,24 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.path.is_relative_to(INTEGRATION):
             item.add_marker(pytest.mark.integration)
+        # `make test` spreads tests over xdist workers one by one (--dist loadgroup), but
+        if "browser" in getattr(item, "fixturenames", ()):
+            # the browser tests run one after another: two headless Chromiums drawing the 3D
+            # viewer in software at once starve each other (page timeouts at load 9)
+            item.add_marker(pytest.mark.xdist_group("browser"))
+        elif _uses_own_module_fixture(item):
+            # tests sharing a module-scoped fixture of their own module (a Ray cluster, generated
+            # episodes, a built home) stay on one worker, so that it is built once
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+
+
+def _uses_own_module_fixture(item: pytest.Item) -> bool:
+    info = getattr(item, "_fixtureinfo", None)
+    module = getattr(getattr(item, "module", None), "__name__", None)
+    if info is None or module is None:
+        return False
+    return any(
+        d.scope == "module" and getattr(d.func, "__module__", None) == module
+        for defs in info.name2fixturedefs.values()
+        for d in defs
+    )
