@@ -35,7 +35,9 @@ def _gallery_file(server: LiveServer, tmp_path: Path, near: bool) -> tuple[Path,
 
 def _scrub(page, step: int) -> None:
     """Move the replay slider as a finger would (value + input event), then wait for that step."""
-    page.eval_on_selector("#replay-slider", "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input')); }", step + 1)
+    page.eval_on_selector(
+        "#replay-slider", "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input')); }", step + 1
+    )
     page.wait_for_function(
         "(s) => document.getElementById('replay').dataset.step === String(s)"
         " && document.getElementById('replay-words').textContent.startsWith(`Step ${s + 1}:`)",
@@ -84,7 +86,9 @@ def test_phone_start_follow_stop_and_replay(browser, live_console: LiveServer, t
         page.wait_for_function("document.getElementById('run-badge').textContent.includes('stopped')", timeout=300_000)
         row = live_console.console.store.get_run(run_id)
         assert row is not None and row["status"] == "stopped" and row["n_steps"] >= 2
-        page.wait_for_function("document.getElementById('run-outcome').textContent.includes('Stopped by the operator')", timeout=60_000)
+        page.wait_for_function(
+            "document.getElementById('run-outcome').textContent.includes('Stopped by the operator')", timeout=60_000
+        )
         # the replay of the run on the phone: scrub to a step, see its picture and map
         page.wait_for_selector("#replay-slider", timeout=60_000)
         last = row["n_steps"] - 1
@@ -111,7 +115,12 @@ def test_console_live_run_in_the_viewer_and_stop(browser, live_console: LiveServ
         frame = page.wait_for_selector("#viewer-frame").content_frame()
         assert frame is not None
         canvas = frame.wait_for_selector("canvas", timeout=60_000)
-        poll(lambda: canvas.bounding_box(), lambda bb: bb is not None and bb["width"] > 200 and bb["height"] > 200, 60, "canvas size")
+        poll(
+            lambda: canvas.bounding_box(),
+            lambda bb: bb is not None and bb["width"] > 200 and bb["height"] > 200,
+            60,
+            "canvas size",
+        )
         page.wait_for_selector("#sim-home")
         page.click(f"#gallery figure[data-item='{g['item']}']")
         # picking the gallery object chose a start that makes a real search
@@ -127,8 +136,15 @@ def test_console_live_run_in_the_viewer_and_stop(browser, live_console: LiveServ
         # Stop at once: the agent finds some goals of a real search within a minute, and a run
         # that has ended cannot show that Stop works (the pictures below stay from the run)
         page.click("#stop")
-        poll(lambda: live_console.console.store.get_run(run_id)["status"], lambda s: s in ("stopped", "finished", "failed"), 300, "end")
-        assert live_console.console.store.get_run(run_id)["status"] == "stopped"  # a real search: only Stop ends it this early
+        poll(
+            lambda: live_console.console.store.get_run(run_id)["status"],
+            lambda s: s in ("stopped", "finished", "failed"),
+            300,
+            "end",
+        )
+        assert (
+            live_console.console.store.get_run(run_id)["status"] == "stopped"
+        )  # a real search: only Stop ends it this early
         # the viewer followed the run (the 3D canvas shows its map and pose), the page its live picture
         poll(lambda: hashlib.sha256(canvas.screenshot()).hexdigest(), lambda h: h != first, 300, "canvas update")
         page.wait_for_selector("#live-frame[src*='/replay/']", timeout=60_000)
@@ -163,7 +179,9 @@ def scripted_console(tmp_path: Path):
     server.close()
 
 
-def test_console_candidates_live_then_replay_in_page_and_viewer(browser, scripted_console: LiveServer, tmp_path: Path) -> None:
+def test_console_candidates_live_then_replay_in_page_and_viewer(
+    browser, scripted_console: LiveServer, tmp_path: Path
+) -> None:
     from tests.helpers.console_testkit import encode, textured_rgb
 
     p, b = browser

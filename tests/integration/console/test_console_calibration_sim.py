@@ -63,7 +63,11 @@ def test_calibrate_page_with_simulator_photos(browser, live_console: LiveServer,
         page.click("#run")
         page.wait_for_selector("#result-card:not([hidden])", timeout=600_000)
         proposal = page.inner_text("#proposal")
-        assert "Proposed tau" in proposal and "of 9 same-object pairs" in proposal and "of 27 different-object pairs" in proposal
+        assert (
+            "Proposed tau" in proposal
+            and "of 9 same-object pairs" in proposal
+            and "of 27 different-object pairs" in proposal
+        )
         assert page.locator("#curves-svg path").count() == 2  # PR and F curves drawn
         page.screenshot(path=str(ARTIFACTS / "calibrate.png"), full_page=True)
         page.click("#save")

@@ -46,7 +46,9 @@ def gallery_png(client: TestClient, item: dict) -> bytes:
 
 def pick_target(h: dict) -> tuple[dict, dict]:
     """A large, easy instance (couch or bed) and the start near it."""
-    by_cat = sorted(h["gallery"], key=lambda g: ["couch", "bed", "tv", "chair", "potted plant", "toilet"].index(g["category"]))
+    by_cat = sorted(
+        h["gallery"], key=lambda g: ["couch", "bed", "tv", "chair", "potted plant", "toilet"].index(g["category"])
+    )
     for g in by_cat:
         start = next((s for s in h["starts"] if s["id"] == f"n{g['instance']}"), None)
         if start is not None:
@@ -94,8 +96,12 @@ def test_reencoded_gallery_photo_is_identified_and_unknown_photo_is_unscored(cli
     g = h["gallery"][0]
     as_jpeg = io.BytesIO()
     Image.open(io.BytesIO(gallery_png(client, g))).convert("RGB").resize((400, 400)).save(as_jpeg, "JPEG", quality=80)
-    run = client.post("/api/runs", files={"goal_image": ("g.jpg", as_jpeg.getvalue(), "image/jpeg")}, data={"max_steps": "2"}).json()
-    assert run["target"]["instance_id"] == g["instance"] and run["target"]["identified_by"].startswith("perceptual hash")
+    run = client.post(
+        "/api/runs", files={"goal_image": ("g.jpg", as_jpeg.getvalue(), "image/jpeg")}, data={"max_steps": "2"}
+    ).json()
+    assert run["target"]["instance_id"] == g["instance"] and run["target"]["identified_by"].startswith(
+        "perceptual hash"
+    )
     done = wait_final(client, run["id"])
     assert done["status"] == "finished" and done["outcome"] in ("success", "failure") and done["n_steps"] == 2
 
@@ -103,7 +109,9 @@ def test_reencoded_gallery_photo_is_identified_and_unknown_photo_is_unscored(cli
     other = (np.kron(rng.integers(0, 255, (12, 16, 3)), np.ones((20, 20, 1)))).astype(np.uint8)
     buf = io.BytesIO()
     Image.fromarray(other).save(buf, "PNG")
-    run = client.post("/api/runs", files={"goal_image": ("x.png", buf.getvalue(), "image/png")}, data={"max_steps": "2"}).json()
+    run = client.post(
+        "/api/runs", files={"goal_image": ("x.png", buf.getvalue(), "image/png")}, data={"max_steps": "2"}
+    ).json()
     assert run["target"] is None
     done = wait_final(client, run["id"])
     assert done["outcome"] == "unscored" and "not scored" in done["outcome_detail"]
@@ -192,7 +200,10 @@ def test_episode_choice_sets_home_start_and_target(sim_data_dir: Path, tmp_path:
         resolved = provider.resolve(RunForm(episode="val-test-0"), 0, "")
         assert resolved.target["instance_id"] == 0 and resolved.target["identified_by"] == "episode"
         assert resolved.options["home_seed"] == 12345 and resolved.options["start_pose_world"] == [1.0, 1.0, 0.0]
-        for data_, fragment in [({"episode": "nope"}, "no episode"), ({"episode": "val-test-0", "home": "home-0"}, "fixes home")]:
+        for data_, fragment in [
+            ({"episode": "nope"}, "no episode"),
+            ({"episode": "val-test-0", "home": "home-0"}, "fixes home"),
+        ]:
             resp = client.post("/api/runs", files={"goal_image": ("g.png", png.content, "image/png")}, data=data_)
             assert resp.status_code == 422 and fragment in resp.json()["detail"]["message"]
         assert client.get("/api/sim/episodes/..%2F..%2Fetc/goal.png").status_code == 404

@@ -50,8 +50,16 @@ def catalog(sim_data_dir: Path):
 
 def open_run(catalog, worlds: WorldCache | None, **kw):
     home, item, start, goal = catalog
-    args = dict(home_seed=home.seed, n_rooms=N_ROOMS, start_pose_world=start.pose_world, goal_rgb=goal,
-                target_instance_id=item.instance_id, max_steps=STEPS, agent_config_path=None, worlds=worlds)
+    args = dict(
+        home_seed=home.seed,
+        n_rooms=N_ROOMS,
+        start_pose_world=start.pose_world,
+        goal_rgb=goal,
+        target_instance_id=item.instance_id,
+        max_steps=STEPS,
+        agent_config_path=None,
+        worlds=worlds,
+    )
     args.update(kw)
     return sim_adapter.open_session(**args)
 
@@ -97,7 +105,9 @@ def test_same_home_reuses_kept_data_and_acts_and_scores_as_without_it(catalog, m
         free = reachable_component(world.navigable_grid(GRID_RESOLUTION_M), start.pose_world[:2])
         direct = np.asarray(instance_viewpoints(world, item.instance_id, free), float).reshape(-1, 2)
         assert np.array_equal(kept_viewpoints, direct)
-        assert np.array_equal(second.backend.goal_field(), geodesic_field(world.navigable_grid(GRID_RESOLUTION_M), direct))
+        assert np.array_equal(
+            second.backend.goal_field(), geodesic_field(world.navigable_grid(GRID_RESOLUTION_M), direct)
+        )
     finally:
         worlds.close()
 
@@ -136,7 +146,9 @@ def test_another_home_does_not_reuse_kept_data(catalog) -> None:
         assert worlds.derived_items("scoring") == [] and worlds.derived_items("start_render") == []
         _, _, pose = sim_adapter._starts(other, np.random.default_rng(0))[0]
         target = other.home.instances[0].object_id
-        session = open_run(catalog, worlds, home_seed=seed, start_pose_world=pose, target_instance_id=target, max_steps=1)
+        session = open_run(
+            catalog, worlds, home_seed=seed, start_pose_world=pose, target_instance_id=target, max_steps=1
+        )
         assert session.backend.world is other
         run(session, steps=1)
         (item,) = worlds.derived_items("scoring")

@@ -48,7 +48,12 @@ def test_token_box_is_per_client_masked_and_cleared(browser, viewer) -> None:
         poll(lambda: len(v.controls.by_client), lambda n: n == 2, 30, "two clients with their own controls")
         a.fill(TOKEN_INPUT, TOKEN)
         # the server has A's token in A's box only...
-        poll(lambda: [c.token_box.value for c in v.controls.by_client.values()], lambda vals: sorted(vals) == ["", TOKEN], 30, "A's box")
+        poll(
+            lambda: [c.token_box.value for c in v.controls.by_client.values()],
+            lambda vals: sorted(vals) == ["", TOKEN],
+            30,
+            "A's box",
+        )
         assert b.input_value(TOKEN_INPUT) == ""
         # A's box is masked on screen
         assert a.eval_on_selector(TOKEN_INPUT, "el => getComputedStyle(el).webkitTextSecurity") == "disc"
@@ -61,7 +66,12 @@ def test_token_box_is_per_client_masked_and_cleared(browser, viewer) -> None:
         assert stops == []
         # B with a wrong token: both boxes hold their own text, on the server and on each page
         b.fill(TOKEN_INPUT, "guess")
-        poll(lambda: sorted(c.token_box.value for c in v.controls.by_client.values()), lambda vals: vals == ["guess", TOKEN], 30, "B's guess")
+        poll(
+            lambda: sorted(c.token_box.value for c in v.controls.by_client.values()),
+            lambda vals: vals == ["guess", TOKEN],
+            30,
+            "B's guess",
+        )
         assert b.input_value(TOKEN_INPUT) == "guess" and a.input_value(TOKEN_INPUT) == TOKEN
         # ...and B's Stop is refused, and its box is cleared
         b.click("button:has-text('Stop the run')")

@@ -43,7 +43,9 @@ def photo(fmt: str = "JPEG") -> tuple[str, bytes, str]:
 
 
 def wait_done(client: TestClient, run_id: str) -> dict:
-    return poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in ("finished", "stopped", "failed"))
+    return poll(
+        lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in ("finished", "stopped", "failed")
+    )
 
 
 def test_photo_alone_starts_a_run_that_is_recorded(client: TestClient, tmp_path: Path) -> None:
@@ -66,7 +68,9 @@ def test_photo_alone_starts_a_run_that_is_recorded(client: TestClient, tmp_path:
     listed = client.get("/api/runs").json()
     assert listed["runs"][0]["id"] == run["id"] and listed["active_run"] is None
     files = {p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()}
-    assert all(f.startswith(f"runs/{run['id']}/") or f.startswith("console.sqlite3") or f == "console.lock" for f in files), files
+    assert all(
+        f.startswith(f"runs/{run['id']}/") or f.startswith("console.sqlite3") or f == "console.lock" for f in files
+    ), files
 
 
 def test_one_step_schema_for_the_api_the_event_stream_and_trajectory_json(tmp_path: Path) -> None:
@@ -88,7 +92,9 @@ def test_one_step_schema_for_the_api_the_event_stream_and_trajectory_json(tmp_pa
     console.close()
     assert len(api_steps) == 4 and api_steps == traj_steps
     assert [{k: v for k, v in e.items() if k != "status"} for e in events] == api_steps
-    assert api_steps[1]["action_name"] == "TURN_LEFT" and {"reid_full_matcher", "reid_gate_score", "timings"} <= set(api_steps[1])
+    assert api_steps[1]["action_name"] == "TURN_LEFT" and {"reid_full_matcher", "reid_gate_score", "timings"} <= set(
+        api_steps[1]
+    )
     # the agent's event (AgentRecord.event) is carried like every field of console.step_schema.StepRow
     assert [s["event"] for s in api_steps] == ["frontier", "frontier", "frontier", "stop_at_goal"]
 
@@ -166,7 +172,9 @@ def test_missing_photo_is_422(client: TestClient) -> None:
 
 
 def test_size_limits(tmp_path: Path, provider: ScriptedProvider) -> None:
-    console, client = make(tmp_path, provider, max_request_bytes=50_000, photo_limits=PhotoLimits(max_bytes=20_000, max_pixels=40_000))
+    console, client = make(
+        tmp_path, provider, max_request_bytes=50_000, photo_limits=PhotoLimits(max_bytes=20_000, max_pixels=40_000)
+    )
     with client:
         noise = np.random.default_rng(0).integers(0, 255, size=(400, 400, 3), dtype=np.uint8)
         big = encode(noise, "PNG")
@@ -189,12 +197,20 @@ def test_token_required_when_configured(tmp_path: Path, provider: ScriptedProvid
     with client:
         assert client.get("/api/config").json()["token_required"] is True
         assert client.post("/api/runs", files={"goal_image": photo()}).status_code == 401
-        assert client.post("/api/runs", files={"goal_image": photo()}, headers={"X-Imgnav-Token": "wrong"}).status_code == 401
-        ok = client.post("/api/runs", files={"goal_image": photo()}, headers={"Authorization": f"Bearer {console.token}"})
+        assert (
+            client.post("/api/runs", files={"goal_image": photo()}, headers={"X-Imgnav-Token": "wrong"}).status_code
+            == 401
+        )
+        ok = client.post(
+            "/api/runs", files={"goal_image": photo()}, headers={"Authorization": f"Bearer {console.token}"}
+        )
         assert ok.status_code == 201
         run_id = ok.json()["id"]
         assert client.post(f"/api/runs/{run_id}/stop").status_code == 401
-        assert client.post(f"/api/runs/{run_id}/stop", data={}, headers={"X-Imgnav-Token": console.token}).status_code == 200
+        assert (
+            client.post(f"/api/runs/{run_id}/stop", data={}, headers={"X-Imgnav-Token": console.token}).status_code
+            == 200
+        )
         wait_done(client, run_id)
         form_token = client.post("/api/runs", files={"goal_image": photo()}, data={"token": console.token})
         assert form_token.status_code == 201
@@ -205,7 +221,9 @@ def test_token_required_when_configured(tmp_path: Path, provider: ScriptedProvid
 def test_cross_origin_post_refused_and_no_cors(client: TestClient) -> None:
     resp = client.post("/api/runs", files={"goal_image": photo()}, headers={"Origin": "http://evil.example"})
     assert resp.status_code == 403 and resp.json()["detail"]["code"] == "cross_origin"
-    pre = client.options("/api/runs", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "POST"})
+    pre = client.options(
+        "/api/runs", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "POST"}
+    )
     assert "access-control-allow-origin" not in pre.headers
     same = client.post("/api/runs", files={"goal_image": photo()}, headers={"Origin": "http://testserver"})
     assert same.status_code == 201

@@ -44,7 +44,9 @@ def test_no_server_error(api_schema) -> None:
         operation = result.ok()
 
         @given(case=operation.as_strategy())
-        @settings(max_examples=12, deadline=None, database=None, derandomize=True, suppress_health_check=list(HealthCheck))
+        @settings(
+            max_examples=12, deadline=None, database=None, derandomize=True, suppress_health_check=list(HealthCheck)
+        )
         def fuzz(case) -> None:
             # fuzz() runs within this iteration, so the loop variable is the one it was built for
             calls[operation.path] = calls.get(operation.path, 0) + 1  # noqa: B023

@@ -27,7 +27,9 @@ class ColourMatcher:
     name = "colour"
 
     def extract(self, rgb: np.ndarray, max_keypoints: int) -> Features:
-        return Features(np.zeros((1, 2), np.float32), rgb.reshape(-1, 3)[:64].astype(np.float32), (rgb.shape[1], rgb.shape[0]))
+        return Features(
+            np.zeros((1, 2), np.float32), rgb.reshape(-1, 3)[:64].astype(np.float32), (rgb.shape[1], rgb.shape[0])
+        )
 
     def match(self, goal: Features, obs: Features) -> Matches:
         same = float(np.abs(goal.descriptors - obs.descriptors).mean()) < 30
@@ -43,8 +45,12 @@ def photo_of(obj: int, view: int) -> bytes:
 
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[tuple[Console, TestClient]]:
-    console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider()})
-    console.calibrator = Calibrator(console.data_dir, matcher_for=lambda d: (ColourMatcher(), ReIDConfig(matcher="xfeat_lighterglue")))
+    console = Console(
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider()}
+    )
+    console.calibrator = Calibrator(
+        console.data_dir, matcher_for=lambda d: (ColourMatcher(), ReIDConfig(matcher="xfeat_lighterglue"))
+    )
     with TestClient(create_app(console)) as c:
         yield console, c
     console.close()
@@ -77,7 +83,9 @@ def test_calibrate_from_photos_and_save(client) -> None:
     assert saved.status_code == 200, saved.text
     doc = json.loads((console.data_dir / "calibration" / "stretch.json").read_text())
     assert doc["tau"] == pytest.approx(36.0) and doc["matcher"] == "xfeat_lighterglue" and doc["score"] == "conf"
-    assert (doc["same_pairs"], doc["different_pairs"]) == (9, 27) and doc["created"] and "operator photos" in doc["source"]
+    assert (
+        (doc["same_pairs"], doc["different_pairs"]) == (9, 27) and doc["created"] and "operator photos" in doc["source"]
+    )
     after = c.get("/api/calibration").json()
     assert after["stretch"]["tau"] == pytest.approx(36.0) and "your photos" in after["stretch"]["source"]
     assert after["sim"]["file"] is None  # only the chosen deployment changed

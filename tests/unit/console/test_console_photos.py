@@ -89,10 +89,14 @@ def _png_header_only(width: int, height: int) -> bytes:
     """A valid PNG declaring width x height with almost no data: a decompression bomb's header."""
 
     def chunk(tag: bytes, payload: bytes) -> bytes:
-        return struct.pack(">I", len(payload)) + tag + payload + struct.pack(">I", zlib.crc32(tag + payload) & 0xFFFFFFFF)
+        return (
+            struct.pack(">I", len(payload)) + tag + payload + struct.pack(">I", zlib.crc32(tag + payload) & 0xFFFFFFFF)
+        )
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b"")
+    )
 
 
 def test_decompression_bomb_rejected_from_header() -> None:
@@ -147,4 +151,3 @@ def test_image_over_the_pixel_limit_names_both_sizes() -> None:
         decode_photo(data)
     assert err.value.code == "too_many_pixels"
     assert "8000x7000 = 56 megapixels" in str(err.value) and "limit is 50 megapixels" in str(err.value)
-

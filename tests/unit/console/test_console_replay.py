@@ -22,11 +22,14 @@ from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textur
 @pytest.fixture
 def finished(tmp_path: Path) -> Iterator[tuple[Console, TestClient, str]]:
     console = Console(
-        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider(stop_after=25)}
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
+        {"scripted": ScriptedProvider(stop_after=25)},
     )
     client = TestClient(create_app(console))
     with client:
-        run = client.post("/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")})
+        run = client.post(
+            "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
+        )
         run_id = run.json()["id"]
         poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "finished")
         yield console, client, run_id

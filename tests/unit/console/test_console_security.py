@@ -94,7 +94,9 @@ def test_dns_rebinding_is_refused_on_every_route(loopback_console) -> None:
     ]
     for resp in attempts:
         assert resp.status_code == 400, (resp.request.method, resp.request.url, resp.status_code, resp.text)
-        assert "goal" not in resp.headers.get("content-type", "") and "image" not in resp.headers.get("content-type", "")
+        assert "goal" not in resp.headers.get("content-type", "") and "image" not in resp.headers.get(
+            "content-type", ""
+        )
     assert console.manager.active_run_id == run_id  # still running: the forged stop did nothing
     assert console.store.get_run(run_id)["status"] == "running"
     assert len(client.get("/api/runs").json()["runs"]) == 1  # the forged start created nothing
@@ -102,7 +104,9 @@ def test_dns_rebinding_is_refused_on_every_route(loopback_console) -> None:
     for host in ("127.0.0.1:8775", "localhost:8775", "localhost", "[::1]:8775"):
         assert client.get("/api/config", headers={"Host": host}).status_code == 200, host
     # ...and a same-origin stop under a real name works.
-    stop = client.post(f"/api/runs/{run_id}/stop", headers={"Host": "localhost:8775", "Origin": "http://localhost:8775"})
+    stop = client.post(
+        f"/api/runs/{run_id}/stop", headers={"Host": "localhost:8775", "Origin": "http://localhost:8775"}
+    )
     assert stop.status_code == 200 and stop.json()["stopping"] is True
     gate.set()
     poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "stopped")
@@ -110,7 +114,8 @@ def test_dns_rebinding_is_refused_on_every_route(loopback_console) -> None:
 
 def test_allowed_host_option_adds_a_name(tmp_path: Path) -> None:
     console = Console(
-        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("robot-console.lan",)), {"scripted": ScriptedProvider()}
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("robot-console.lan",)),
+        {"scripted": ScriptedProvider()},
     )
     try:
         with TestClient(create_app(console), base_url="http://robot-console.lan:8000") as client:
@@ -163,7 +168,9 @@ def test_second_console_on_a_data_directory_fails_naming_the_first(tmp_path: Pat
 
 
 def test_a_killed_console_does_not_block_the_next(tmp_path: Path) -> None:
-    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, str(tmp_path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert holder.stdout.readline().strip() == "ready"
         holder.kill()  # SIGKILL: no clean-up runs; the kernel drops the flock
@@ -175,7 +182,9 @@ def test_a_killed_console_does_not_block_the_next(tmp_path: Path) -> None:
     console.close()
 
 
-def test_imgnav_console_exits_with_the_message_when_the_directory_is_held(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+def test_imgnav_console_exits_with_the_message_when_the_directory_is_held(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     first = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, port=8001), {})
     try:
         parser = __import__("argparse").ArgumentParser()

@@ -32,10 +32,14 @@ CLOCKS_S = 0.002  # the request's part is wall clock, the others perf_counter
 
 
 def test_first_action_parts_add_up_to_at_most_the_total(tmp_path: Path) -> None:
-    console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider(3)})
+    console = Console(
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider(3)}
+    )
     try:
         with TestClient(create_app(console)) as client:
-            resp = client.post("/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")})
+            resp = client.post(
+                "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
+            )
             assert resp.status_code == 201, resp.text
             run_id = resp.json()["id"]
             done = poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] == "finished")
@@ -53,11 +57,16 @@ def test_first_action_parts_add_up_to_at_most_the_total(tmp_path: Path) -> None:
 @pytest.mark.parametrize("fail_at", [None, 0])
 def test_goal_png_is_written_after_the_first_action_or_at_the_end(tmp_path: Path, fail_at: int | None) -> None:
     upload = encode(textured_rgb(120, 160), "JPEG")
-    console = Console(ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)), {"scripted": ScriptedProvider(3, fail_at)})
+    console = Console(
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
+        {"scripted": ScriptedProvider(3, fail_at)},
+    )
     try:
         with TestClient(create_app(console)) as client:
             run_id = client.post("/api/runs", files={"goal_image": ("g.jpg", upload, "image/jpeg")}).json()["id"]
-            done = poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in ("finished", "failed"))
+            done = poll(
+                lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in ("finished", "failed")
+            )
             assert done["status"] == ("finished" if fail_at is None else "failed"), done
             assert {"goal.png", "goal_upload.jpg"} <= set(done["artifacts"])
             png = client.get(done["artifacts"]["goal.png"]).content

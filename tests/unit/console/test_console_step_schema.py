@@ -167,7 +167,9 @@ def test_a_field_declared_once_reaches_the_table_the_api_the_events_trajectory_a
     # the scripted agent holds a candidate from its fourth action on
     expected = [0, 0, 0, 1, 1, 1, 1]
     raw = sqlite3.connect(tmp_path / "console.sqlite3")
-    assert [r[0] for r in raw.execute("SELECT candidates_held FROM steps WHERE run_id=? ORDER BY step", (run_id,))] == expected
+    assert [
+        r[0] for r in raw.execute("SELECT candidates_held FROM steps WHERE run_id=? ORDER BY step", (run_id,))
+    ] == expected
     assert {"candidates_held", "event"} <= {r[1] for r in raw.execute("PRAGMA table_info(steps)")}
     raw.close()
     assert [s.candidates_held for s in stored] == expected  # type: ignore[attr-defined]

@@ -9,13 +9,32 @@ from console.store import RunStore
 
 
 def _step(i: int, score: float | None = 1.5) -> StepRow:
-    return StepRow(i, 100.0 + i, 1, 0.25 * i, 0.0, 0.1, "explore", "nearest frontier", score, 10.0, False, 0,
-                   1.0, 2.0, "frontier", None, {"total": 12.5})
+    return StepRow(
+        i,
+        100.0 + i,
+        1,
+        0.25 * i,
+        0.0,
+        0.1,
+        "explore",
+        "nearest frontier",
+        score,
+        10.0,
+        False,
+        0,
+        1.0,
+        2.0,
+        "frontier",
+        None,
+        {"total": 12.5},
+    )
 
 
 def test_run_round_trip(tmp_path: Path) -> None:
     store = RunStore(tmp_path / "db.sqlite3")
-    store.create_run("a" * 12, backend="sim", options={"home": "h0"}, goal={"sha256": "x"}, target={"instance": 3}, created_s=1.0)
+    store.create_run(
+        "a" * 12, backend="sim", options={"home": "h0"}, goal={"sha256": "x"}, target={"instance": 3}, created_s=1.0
+    )
     store.update_run("a" * 12, status="running", started_s=2.0, agent_config={"tau": 10.0})
     for i in range(3):
         store.add_step("a" * 12, _step(i))
@@ -74,14 +93,20 @@ def test_steps_keep_the_re_id_gate_and_older_files_gain_its_columns(tmp_path: Pa
     store = RunStore(db)
     store.create_run("b" * 12, backend="sim", options={}, goal={}, target=None, created_s=1.0)
     store.add_step("b" * 12, replace(_step(0, score=0.0), reid_full_matcher=False, reid_gate_score=12.0))
-    store.add_step("b" * 12, replace(_step(1, score=80.5), reid_full_matcher=True, reid_gate_score=140.0,
-                                     reid_exit_score=41.5))
+    store.add_step(
+        "b" * 12, replace(_step(1, score=80.5), reid_full_matcher=True, reid_gate_score=140.0, reid_exit_score=41.5)
+    )
     store.add_step("b" * 12, _step(2))  # gate off: neither is known
-    store.add_step("b" * 12, replace(_step(3, score=0.0), reid_full_matcher=False, reid_gate_score=30.0,
-                                     reid_exit_score=0.75))  # stopped by the exit stage
+    store.add_step(
+        "b" * 12, replace(_step(3, score=0.0), reid_full_matcher=False, reid_gate_score=30.0, reid_exit_score=0.75)
+    )  # stopped by the exit stage
     got = store.steps("b" * 12)
     assert [(s.reid_full_matcher, s.reid_gate_score, s.reid_exit_score) for s in got] == [
-        (False, 12.0, None), (True, 140.0, 41.5), (None, None, None), (False, 30.0, 0.75)]
+        (False, 12.0, None),
+        (True, 140.0, 41.5),
+        (None, None, None),
+        (False, 30.0, 0.75),
+    ]
     # a data directory from before the gate: its steps table lacks the columns; opening adds them
     old = tmp_path / "old.sqlite3"
     con = sqlite3.connect(old)
@@ -92,8 +117,11 @@ def test_steps_keep_the_re_id_gate_and_older_files_gain_its_columns(tmp_path: Pa
         " target_x_m REAL, target_y_m REAL, target_kind TEXT, planner_error TEXT, timings_json TEXT NOT NULL,"
         " PRIMARY KEY (run_id, step));"
         "INSERT INTO steps VALUES ('cccccccccccc', 0, 1.0, 1, 0, 0, 0, 'explore', '', 3.0, 10.0, 0, 0, NULL, NULL,"
-        " NULL, NULL, '{}');")
+        " NULL, NULL, '{}');"
+    )
     con.commit()
     con.close()
     reopened = RunStore(old)
-    assert [(s.reid_score, s.reid_full_matcher, s.reid_exit_score) for s in reopened.steps("c" * 12)] == [(3.0, None, None)]
+    assert [(s.reid_score, s.reid_full_matcher, s.reid_exit_score) for s in reopened.steps("c" * 12)] == [
+        (3.0, None, None)
+    ]

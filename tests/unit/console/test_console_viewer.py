@@ -28,11 +28,13 @@ def test_camera_rotation_opencv_axes() -> None:
 def test_quaternion_round_trip(yaw: float) -> None:
     R = camera_rotation(yaw, 0.2)
     w, x, y, z = rotation_to_wxyz(R)
-    Rq = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    Rq = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     assert np.allclose(Rq, R, atol=1e-9)
 
 
@@ -44,9 +46,24 @@ def records(n: int) -> list[StepRecord]:
     for step in range(n):
         action = agent.act(obs)
         traj.append((obs.pose.x_m, obs.pose.y_m))
-        out.append(StepRecord("abcdefabcdef", step, time.time(), action, obs.pose, obs.rgb, obs.depth_m, obs.intrinsics,
-                              obs.camera_height_m, obs.camera_tilt_rad, goal, agent.last_record, np.array(traj),
-                              tuple((i, float(i), 10.0) for i in range(step + 1))))
+        out.append(
+            StepRecord(
+                "abcdefabcdef",
+                step,
+                time.time(),
+                action,
+                obs.pose,
+                obs.rgb,
+                obs.depth_m,
+                obs.intrinsics,
+                obs.camera_height_m,
+                obs.camera_tilt_rad,
+                goal,
+                agent.last_record,
+                np.array(traj),
+                tuple((i, float(i), 10.0) for i in range(step + 1)),
+            )
+        )
         backend.apply(action)
         obs = backend.observe()
     return out
@@ -136,7 +153,9 @@ def test_viewer_refuses_foreign_host_or_origin(host_header: str, origin: str | N
     viewer = Viewer(ViewerConfig(port=0), on_stop=lambda: stops.append(1) or "stopping")
     try:
         port = viewer.port
-        with _ws_connect(port, host_header.format(port=port), None if origin is None else origin.format(port=port)) as ws:
+        with _ws_connect(
+            port, host_header.format(port=port), None if origin is None else origin.format(port=port)
+        ) as ws:
             kind, value = _first_message_or_close(ws)
         assert (kind, value) == ("closed", 1008)
         assert viewer.n_rejected == 1 and stops == []
