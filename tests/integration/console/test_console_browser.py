@@ -1,7 +1,7 @@
 """The pages in a real headless Chromium (Debian's package) driven by Playwright, with the
 real simulator and agent behind them.
 
-Screenshots go to test-artifacts/console/ (gitignored); the ones in docs/console/ are
+Screenshots go to $IMGNAV_TEST_ARTIFACTS/console/ (default: the temp dir, never the checkout); the ones in docs/console/ are
 taken from these."""
 
 from __future__ import annotations
