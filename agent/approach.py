@@ -38,7 +38,7 @@ from agent.motion import blocked_here, move_key, safe_action
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.stop_region import in_sight
 from agent.stop_region import stop_cells as stop_cells_of
-from agent.types import FORWARD_STEP_M, Action, Observation, wrap_angle
+from agent.types import FORWARD_STEP_M, Action, Observation, Pose2D, wrap_angle
 
 log = logging.getLogger("agent.policy")
 
@@ -246,21 +246,21 @@ class CandidateNavigator:
             Action.TURN_LEFT, mode, event, target_kind="goal", candidate=cand, planner_error=planner_error
         ), st
 
+    def _turn_to_face(self, pose: Pose2D, xy_m: tuple[float, float]) -> Action | None:
+        """The turn towards ``xy_m`` (run frame), or None when it is within the facing tolerance."""
+        err = wrap_angle(math.atan2(xy_m[1] - pose.y_m, xy_m[0] - pose.x_m) - pose.yaw_rad)
+        if abs(err) <= math.radians(self.config.facing_tolerance_deg):
+            return None
+        return Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT
+
     def _at_candidate(self, scene: Scene, cand: Candidate) -> Decision:
         """In the stop region: face the goal's nearest cell, then STOP."""
         pose = scene.obs.pose
         goal_xy = scene.grid.ij_to_xy(cand.cells_ij)
         k = int(np.argmin(np.hypot(goal_xy[:, 0] - pose.x_m, goal_xy[:, 1] - pose.y_m)))
-        bearing = math.atan2(goal_xy[k, 1] - pose.y_m, goal_xy[k, 0] - pose.x_m)
-        err = wrap_angle(bearing - pose.yaw_rad)
-        if abs(err) > math.radians(self.config.facing_tolerance_deg):
-            return Decision(
-                Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT,
-                Mode.APPROACH,
-                Event.FACE_GOAL,
-                target_kind="goal",
-                candidate=cand,
-            )
+        turn = self._turn_to_face(pose, (goal_xy[k, 0], goal_xy[k, 1]))
+        if turn is not None:
+            return Decision(turn, Mode.APPROACH, Event.FACE_GOAL, target_kind="goal", candidate=cand)
         return Decision(Action.STOP, Mode.STOPPED, Event.STOP_AT_GOAL, target_kind="goal", candidate=cand)
 
     # --- verify by approach ---------------------------------------------------------------
@@ -315,16 +315,11 @@ class CandidateNavigator:
         pc, grid, obs = self.config, scene.grid, scene.obs
         pose = obs.pose
         cl = cand.cluster
-        bearing = math.atan2(cl.centroid_xy_m[1] - pose.y_m, cl.centroid_xy_m[0] - pose.x_m)
-        err = wrap_angle(bearing - pose.yaw_rad)
-        if abs(err) > math.radians(pc.facing_tolerance_deg):
-            return Decision(
-                Action.TURN_LEFT if err > 0 else Action.TURN_RIGHT,
-                Mode.VERIFY,
-                Event.VERIFY_FACE,
-                target_kind="goal",
-                candidate=cl,
-            ), replace(st, verify=v)
+        turn = self._turn_to_face(pose, cl.centroid_xy_m)
+        if turn is not None:
+            return Decision(turn, Mode.VERIFY, Event.VERIFY_FACE, target_kind="goal", candidate=cl), replace(
+                st, verify=v
+            )
         look = next((w for w in cand.views if w.step == obs.step), None)
         if (
             pc.verify_ring_tau_ratio < 1.0

@@ -268,18 +268,14 @@ class ReIdentifier:
         t1 = time.perf_counter()
         gate_score = self._gate.score(obs.descriptors) if self._gate is not None else None
         t_gate = time.perf_counter()
+
+        def skipped(match_ms: float, exit_score: float | None = None) -> ReIDResult:
+            # a frame the gate stopped (first stage, or LighterGlue's exit layer): score 0, no matches
+            return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, match_ms, full_matcher=False,
+                              gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3, exit_score=exit_score)  # fmt: skip
+
         if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
-            return ReIDResult(
-                0.0,
-                Matches.empty(),
-                _EMPTY_XY,
-                _EMPTY_XY,
-                (t1 - t0) * 1e3,
-                0.0,
-                full_matcher=False,
-                gate_score=gate_score,
-                gate_ms=(t_gate - t1) * 1e3,
-            )
+            return skipped(0.0)
         exit_on = use_gate and self.exit_threshold is not None
         if exit_on:
             m = self.matcher.match(self.goal, obs, exit_below=(self.config.score, self.exit_threshold))  # type: ignore[call-arg]
@@ -289,18 +285,7 @@ class ReIdentifier:
         exit_scores = getattr(self.matcher, "exit_scores", None)
         exit_score = None if exit_scores is None else float(exit_scores[self.config.score])
         if exit_on and self.matcher.exited:  # type: ignore[attr-defined]
-            return ReIDResult(
-                0.0,
-                Matches.empty(),
-                _EMPTY_XY,
-                _EMPTY_XY,
-                (t1 - t0) * 1e3,
-                (t2 - t_gate) * 1e3,
-                full_matcher=False,
-                gate_score=gate_score,
-                gate_ms=(t_gate - t1) * 1e3,
-                exit_score=exit_score,
-            )
+            return skipped((t2 - t_gate) * 1e3, exit_score)
         return ReIDResult(
             score=score(m, self.config.score),
             matches=m,
