@@ -63,12 +63,17 @@ async def start_calibration(
             raise error(exc.status, exc.code, f"{name} ({label}): {exc}") from None
         labelled.append(LabelledPhoto(label, name, photo))
     try:
-        job = console.calibrator.start(deployment, labelled)
+        job = await run_in_threadpool(console.calibrator.start, deployment, labelled)
     except CalibrationInputError as exc:
-        raise error(422, "too_few_photos", str(exc)) from None
+        raise error(422, exc.code, str(exc)) from None
     except RuntimeError as exc:
         raise error(409, "calibration_running", str(exc)) from None
     return JSONResponse(json_safe(job.view()), status_code=202, headers={"location": f"/api/calibration/jobs/{job.id}"})
+
+
+@router.get("/jobs", summary="The recent calibrations, newest first (without curves and pair scores)")
+def calibration_jobs(console: ConsoleDep) -> dict[str, Any]:
+    return json_safe({"jobs": [job.summary() for job in console.calibrator.jobs()]})
 
 
 @router.get("/jobs/{job_id}", summary="A calibration's progress and, when done, its curves and proposed tau")
@@ -76,11 +81,28 @@ def calibration_job(console: ConsoleDep, job_id: str = JobParam) -> dict[str, An
     return json_safe(_job(console, job_id).view())
 
 
-@router.post("/jobs/{job_id}/save", summary="Save the proposed tau for the job's deployment", dependencies=[TokenDep])
+@router.post(
+    "/jobs/{job_id}/save",
+    summary="Put the proposed tau in force for the job's deployment (refused when the proposal has problems)",
+    dependencies=[TokenDep],
+)
 def save_calibration(console: ConsoleDep, job_id: str = JobParam) -> dict[str, Any]:
     job = _job(console, job_id)
     try:
-        doc = console.calibrator.save(job)
+        out = console.calibrator.save(job)
     except CalibrationInputError as exc:
-        raise error(409, "not_done", str(exc)) from None
-    return json_safe({"saved": doc, "in_force": tau_in_force(console.data_dir, job.deployment)})
+        raise error(409, exc.code, str(exc)) from None
+    return json_safe(out | {"in_force": tau_in_force(console.data_dir, job.deployment)})
+
+
+@router.post(
+    "/{deployment}/undo",
+    summary="Undo the last save: put back the tau in force before it",
+    dependencies=[TokenDep],
+)
+def undo_calibration(console: ConsoleDep, deployment: str = DeploymentParam) -> dict[str, Any]:
+    try:
+        out = console.calibrator.undo(deployment)
+    except CalibrationInputError as exc:
+        raise error(409, exc.code, str(exc)) from None
+    return json_safe(out | {"in_force": tau_in_force(console.data_dir, deployment)})
