@@ -154,14 +154,15 @@ def host_allowed(host_header: str | None, allowed: list[str] | tuple[str, ...]) 
     return "*" in allowed
 
 
-def origin_allowed(origin: str | None, host_header: str | None) -> bool:
+def origin_allowed(origin: str | None, host_header: str | None, scheme: str = "http") -> bool:
     """A request without Origin (curl, same-origin GET) passes; otherwise the Origin must be
-    this very server (scheme http(s), same host and port as the Host header)."""
+    this very server: the scheme it is served by (``scheme``: http, or https behind TLS; ws and
+    wss count as http and https), the host and port of the Host header."""
     if origin is None:
         return True
     if origin == "null":
         return False
-    return _same_origin(origin, host_header or "")
+    return _same_origin(origin, host_header or "", scheme)
 
 
 def new_token() -> str:
@@ -210,11 +211,22 @@ class GuardMiddleware:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        headers: dict[str, str] = {}
+        for k, v in scope.get("headers", []):
+            name = k.decode("latin-1").lower()
+            if name in ("host", "origin") and name in headers:
+                # two Hosts (or Origins): which one a check reads would decide; a browser never sends two
+                await _send_json(send, 400, {"code": "duplicate_header", "message": f"more than one {name} header"})
+                return
+            headers[name] = v.decode("latin-1")
         method = scope.get("method", "GET")
         if method not in ("GET", "HEAD", "OPTIONS"):
             origin = headers.get("origin")
-            if origin and origin != "null" and not _same_origin(origin, headers.get("host", "")):
+            if (
+                origin
+                and origin != "null"
+                and not _same_origin(origin, headers.get("host", ""), scope.get("scheme", "http"))
+            ):
                 await _send_json(
                     send, 403, {"code": "cross_origin", "message": f"requests from {origin} are not allowed"}
                 )
@@ -280,8 +292,11 @@ class GuardMiddleware:
                 await _send_json(send, 413, too_large)
 
 
-def _same_origin(origin: str, host_header: str) -> bool:
+def _same_origin(origin: str, host_header: str, scheme: str = "http") -> bool:
+    """``origin`` names this server: its scheme (``https://127.0.0.1:8000`` is another origin than
+    ``http://127.0.0.1:8000``: a page served elsewhere over TLS under the same name), host and port."""
     parts = urlsplit(origin)
-    if parts.scheme not in ("http", "https") or not parts.netloc:
+    served = {"ws": "http", "wss": "https"}.get(scheme, scheme)
+    if parts.scheme != served or not parts.netloc:
         return False
     return parts.netloc.lower() == host_header.lower()

@@ -49,9 +49,18 @@ class StopControls:
             )
             uuid = getattr(getattr(token_box, "_impl", None), "uuid", None)
             if uuid:  # mask it: viser's text input has no password type
+                # ...and tie the label to it: viser's <label for=uuid> names no element (its text
+                # input gets no id), so a screen reader announces an unnamed field. HTML inserted by
+                # viser runs no <script>; an image that fails to load runs its onerror, after the
+                # field is on the page, and gives the input the id the label names.
+                tie = (
+                    "for(var l of document.querySelectorAll('label'))if(l.htmlFor==='" + uuid + "')"
+                    "{var i=l.closest('div:has(> div > p > label)').querySelector('input');if(i)i.id=l.htmlFor}"
+                )
                 gui.add_html(
                     f'<style>div:has(> div > p > label[for="{uuid}"]) input '
-                    "{ -webkit-text-security: disc; text-security: disc; }</style>",
+                    "{ -webkit-text-security: disc; text-security: disc; }</style>"
+                    f'<img src="data:," alt="" hidden onerror="{tie}">',
                     order=1.01,
                 )
         with self._handles_lock:

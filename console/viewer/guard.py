@@ -40,9 +40,14 @@ class HandshakeGuard:
         if ws is None:
             return
         headers = ws.request.headers
-        host, origin = headers.get("Host"), headers.get("Origin")
-        if host_allowed(host, self._allowed_hosts) and origin_allowed(origin, host):
+        # get_all, not get: get raises on a repeated header. Two Hosts (or Origins) are refused:
+        # which one a check read would decide, and a browser never sends two.
+        hosts, origins = headers.get_all("Host"), headers.get_all("Origin")
+        host = hosts[0] if len(hosts) == 1 else None
+        origin = origins[0] if origins else None
+        # viser serves plain http: a page's Origin is http://<the Host>
+        if host_allowed(host, self._allowed_hosts) and len(origins) <= 1 and origin_allowed(origin, host, "http"):
             return
         self.n_rejected += 1
-        logger.warning("viewer: refused a connection with Host %r and Origin %r", host, origin)
+        logger.warning("viewer: refused a connection with Host %r and Origin %r", hosts, origins)
         await ws.close(1008, "this viewer is not reachable by that name")

@@ -55,6 +55,9 @@ def test_token_box_is_per_client_masked_and_cleared(browser, viewer) -> None:
             "A's box",
         )
         assert b.input_value(TOKEN_INPUT) == ""
+        # the "Token" label names the box (a screen reader announces it; clicking it focuses it)
+        named = a.get_by_label("Token", exact=True)
+        assert named.count() == 1 and named.input_value() == TOKEN
         # A's box is masked on screen
         assert a.eval_on_selector(TOKEN_INPUT, "el => getComputedStyle(el).webkitTextSecurity") == "disc"
         ARTIFACTS.mkdir(parents=True, exist_ok=True)

@@ -212,3 +212,78 @@ def test_interface_addresses_are_not_loopback() -> None:
 
     addresses = interface_addresses()
     assert all(not a.startswith("127.") for a in addresses), addresses
+
+
+def test_origin_of_another_scheme_or_a_second_host_is_refused(loopback_console) -> None:
+    """Issue 33: ``https://127.0.0.1:PORT`` is another origin than the console's
+    ``http://127.0.0.1:PORT`` (a page served over TLS under the same name); and a request with
+    two Host headers does not get to choose which one the checks read."""
+    console, client, _ = loopback_console
+    for origin in ("https://127.0.0.1:8775", "ws://127.0.0.1:8775", "ftp://127.0.0.1:8775"):
+        resp = client.post("/api/runs", files=_photo(), headers={"Host": "127.0.0.1:8775", "Origin": origin})
+        assert resp.status_code == 403 and resp.json()["detail"]["code"] == "cross_origin", (origin, resp.text)
+    two_hosts = client.post(
+        "/api/runs", files=_photo(), headers=[("Host", "127.0.0.1:8775"), ("Host", "evil.example:8775")]
+    )
+    assert two_hosts.status_code == 400, two_hosts.text
+    two_origins = client.post(
+        "/api/runs",
+        files=_photo(),
+        headers=[("Origin", "http://127.0.0.1:8775"), ("Origin", "http://evil.example:8775")],
+    )
+    assert two_origins.status_code == 400 and two_origins.json()["detail"]["code"] == "duplicate_header"
+    assert client.get("/api/runs").json()["runs"] == []  # none of them started anything
+    same = client.post("/api/calibration/sim/undo", headers={"Origin": "http://127.0.0.1:8775"})
+    assert same.status_code == 409  # the right scheme passes the Origin check (nothing to undo)
+
+
+def _viewer_handshake(port: int, origin: str | None, extra: list[tuple[str, str]]) -> tuple[str, object]:
+    import socket
+
+    import viser
+    from websockets.exceptions import ConnectionClosed, InvalidStatus
+    from websockets.sync.client import connect
+
+    sock = socket.create_connection(("127.0.0.1", port), timeout=10)
+    try:
+        ws = connect(
+            f"ws://127.0.0.1:{port}/",
+            sock=sock,
+            origin=origin,  # type: ignore[arg-type]
+            additional_headers=extra,
+            subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
+            open_timeout=10,
+            close_timeout=2,
+        )
+    except InvalidStatus as exc:  # refused by the websocket library's own handshake
+        return "http", exc.response.status_code
+    with ws:
+        try:
+            return "message", ws.recv(timeout=10)
+        except ConnectionClosed as exc:
+            return "closed", exc.rcvd.code if exc.rcvd is not None else None
+
+
+def test_viewer_refuses_another_scheme_and_two_hosts_cleanly(caplog: pytest.LogCaptureFixture) -> None:
+    from console.viewer import Viewer, ViewerConfig
+
+    viewer = Viewer(ViewerConfig(port=0))
+    try:
+        port = viewer.port
+        cases = [
+            (f"https://127.0.0.1:{port}", []),
+            (None, [("Host", "evil.example")]),  # a second Host header
+        ]
+        for k, (origin, extra) in enumerate(cases, start=1):
+            with caplog.at_level("WARNING"):
+                assert _viewer_handshake(port, origin, extra) == ("closed", 1008), (origin, extra)
+            assert viewer.n_rejected == k
+        assert not [r for r in caplog.records if r.exc_info], "an exception on the way to the refusal"
+        # two Origins: the websocket library answers 400 before the guard sees the request
+        assert _viewer_handshake(port, f"http://127.0.0.1:{port}", [("Origin", "http://evil.example")]) == (
+            "http",
+            400,
+        )
+        assert _viewer_handshake(port, f"http://127.0.0.1:{port}", [])[0] == "message"
+    finally:
+        viewer.close()
