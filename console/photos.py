@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
+from console.words import size_words
+
 logger = logging.getLogger(__name__)
 
 try:  # HEIC/HEIF from iPhones; pillow-heif is a hard dependency but keep the error clear.
@@ -109,7 +111,10 @@ def decode_photo(data: bytes, limits: PhotoLimits = PhotoLimits()) -> GoalPhoto:
         raise PhotoError(400, "empty", "the goal photo is empty (0 bytes)")
     if len(data) > limits.max_bytes:
         raise PhotoError(
-            413, "too_large", f"the goal photo is {len(data)} bytes; the limit is {limits.max_bytes} bytes"
+            413,
+            "too_large",
+            # the read stops one byte past the limit: say the limit, in MB (not "26214401 bytes")
+            f"the goal photo is over the limit of {size_words(limits.max_bytes)}",
         )
     try:
         with warnings.catch_warnings():

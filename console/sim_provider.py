@@ -273,7 +273,7 @@ class SimProvider:
             x, y, _ = start.pose_world
             if sim_adapter.start_collides(home.seed, self.config.n_rooms, x, y):
                 raise OptionsError(
-                    f"start ({x:.2f}, {y:.2f}) is not a free position in {home.id}: the robot (radius 0.17 m) "
+                    f"start ({_shown_m(x)}, {_shown_m(y)}) is not a free position in {home.id}: the robot (radius 0.17 m) "
                     "would overlap a wall or furniture there, or it is outside the home"
                 )
         max_steps = _check_max_steps(form.max_steps)
@@ -429,10 +429,17 @@ def _parse_start(home: HomeEntry, text: str | None) -> Start:
             raise OptionsError(f"start {text!r}: expected 'x,y,yaw_deg' in metres and degrees") from None
         if not all(math.isfinite(v) for v in (x, y, yaw_deg)):
             raise OptionsError(f"start {text!r} is not finite")
-        return Start("custom", f"({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg)", (x, y, math.radians(yaw_deg)))
+        return Start(
+            "custom", f"({_shown_m(x)}, {_shown_m(y)}, {_shown_m(yaw_deg, 0)} deg)", (x, y, math.radians(yaw_deg))
+        )
     raise OptionsError(
         f"no start {text!r} in {home.id}; starts are {[s.id for s in home.starts]}, 'random' or 'x,y,yaw_deg'"
     )
+
+
+def _shown_m(v: float, digits: int = 2) -> str:
+    """A number as a message shows it: 1e308 as "1e+308", not its 309 digits (issue 33)."""
+    return f"{v:.{digits}f}" if abs(v) < 1e6 else f"{v:.3g}"
 
 
 def _check_max_steps(n: int | None) -> int:
