@@ -67,6 +67,15 @@ def duration_words(seconds: float | None) -> str:
     return f"{h} h {m} min" if m else f"{h} h"
 
 
+def size_words(n_bytes: int) -> str:
+    """25 MB, 20 kB, 100 bytes (binary multiples, as the limits are set)."""
+    for unit, size in (("MB", 2**20), ("kB", 2**10)):
+        if n_bytes >= size:
+            value = n_bytes / size
+            return f"{value:.0f} {unit}" if value >= 10 or value == int(value) else f"{value:.1f} {unit}"
+    return f"{n_bytes} bytes"
+
+
 def distance_driven_m(steps: Iterable[Mapping[str, Any]]) -> float:
     """Sum of the position changes between consecutive steps (start-relative poses)."""
     total, last = 0.0, None
@@ -85,7 +94,11 @@ def _steps(n: int) -> str:
 
 
 def run_summary(run: Mapping[str, Any], driven_m: float | None = None) -> dict[str, str]:
-    """``{"headline", "sentence", "tone"}`` for a run row (console.store). tone: good | bad | neutral | active."""
+    """``{"headline", "sentence", "tone", "detail"}`` for a run row (console.store).
+
+    The page shows the headline, then the sentence: the sentence never repeats the headline.
+    tone: good | bad | neutral | active. ``detail``: the run's technical account (the agent's
+    reason, the backend's note), for a disclosure beside the plain words."""
     status = run.get("status") or ""
     outcome = run.get("outcome") or ""
     detail = run.get("outcome_detail") or ""
@@ -105,79 +118,35 @@ def run_summary(run: Mapping[str, Any], driven_m: float | None = None) -> dict[s
     if took:
         extras.append(took)
     tail = f"after {extras[0]}" + ("".join(f", {e}" for e in extras[1:]))
-    agent_why = _agent_reason(detail)
+
+    def said(headline: str, sentence: str, tone: str) -> dict[str, str]:
+        return {"headline": headline, "sentence": sentence, "tone": tone, "detail": detail}
 
     if status in ("pending", "running", "stopping"):
-        return {
-            "headline": STATUS_WORDS[status],
-            "sentence": f"{STATUS_WORDS[status]}: {_steps(n)} so far.",
-            "tone": "active",
-        }
+        return said(STATUS_WORDS[status], f"{_steps(n).capitalize()} so far.", "active")
     if status == "failed":
-        return {
-            "headline": "Failed",
-            "sentence": f"Failed {tail}: {detail or 'an error ended the run'}.",
-            "tone": "bad",
-        }
+        return said("Failed", f"An error ended the run {tail}: {detail or 'no reason was given'}.", "bad")
     if status == "interrupted":
-        return {
-            "headline": "Interrupted",
-            "sentence": f"Interrupted {tail}: the console stopped while the run was active.",
-            "tone": "bad",
-        }
+        return said("Interrupted", f"The console stopped while the run was active, {tail}.", "bad")
     if status == "stopped" or outcome == "stopped":
-        return {"headline": "Stopped", "sentence": f"Stopped by the operator {tail}.", "tone": "neutral"}
+        return said("Stopped", f"The operator stopped the run {tail}.", "neutral")
     ne = metrics.get("ne_m")
-    if outcome == "success":
-        near = f" {ne:.1f} m from {what}" if isinstance(ne, (int, float)) else f" at {what}"
-        return {"headline": "Found it", "sentence": f"Found it: stopped{near} {tail}.", "tone": "good"}
+    # ne_m is the distance to the nearest place the object is seen from (sim.metrics), not to the object
+    near = f" ({ne:.1f} m from the nearest viewpoint of {what})" if isinstance(ne, (int, float)) else ""
     budget = bool(metrics.get("max_steps_reached")) or "budget" in detail
-    if outcome == "failure":
-        if budget:
-            sentence = f"Ran out of steps: the whole budget of {_steps(n)} was used without finding {what}"
-            sentence += "".join(f", {e}" for e in extras[1:]) + "."
-            return {"headline": "Ran out of steps", "sentence": sentence, "tone": "bad"}
-        if "gave up" in detail or "exhausted" in detail:
-            return {
-                "headline": "Gave up",
-                "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'}.",
-                "tone": "bad",
-            }
-        far = f" {ne:.1f} m from {what}" if isinstance(ne, (int, float)) else ""
-        why = f" ({agent_why})" if agent_why else ""
-        return {
-            "headline": "Wrong place",
-            "sentence": f"Stopped{far}, not close enough to it, {tail}{why}.",
-            "tone": "bad",
-        }
-    # unscored: the target is unknown (a real home, or a photo of something the simulator cannot name)
+    gave_up = "gave up" in detail or "exhausted" in detail  # the console's own prefix (console.manager)
+    scored = "" if outcome in ("success", "failure") else " Not scored: the object's true position is unknown."
+    tone = "neutral" if scored else "bad"
+    if outcome == "success":
+        return said("Found it", f"Stopped at {what} {tail}{near}.", "good")
     if budget:
-        return {
-            "headline": "Ran out of steps",
-            "sentence": f"Ran out of steps {tail} without stopping (not scored).",
-            "tone": "neutral",
-        }
-    if "gave up" in detail or "exhausted" in detail:
-        return {
-            "headline": "Gave up",
-            "sentence": f"Gave up {tail}: {agent_why or 'nothing left to explore'} (not scored).",
-            "tone": "neutral",
-        }
-    why = f": {agent_why}" if agent_why else ""
-    return {
-        "headline": "Stopped at what it took for the object",
-        "sentence": f"Stopped at what it took for the object {tail}{why}. Not scored: the goal's true position is unknown.",
-        "tone": "neutral",
-    }
-
-
-def _agent_reason(detail: str) -> str:
-    """The agent's own words in an outcome detail ("the agent gave up (exhausted): no reachable
-    frontier ..." -> "no reachable frontier ...")."""
-    first = detail.split("; ")[0]
-    if first.startswith("the agent") and ": " in first:
-        return first.split(": ", 1)[1]
-    return ""
+        sentence = f"The whole budget of {_steps(n)} was used without stopping at {what}"
+        return said("Ran out of steps", sentence + "".join(f", {e}" for e in extras[1:]) + "." + scored, tone)
+    if gave_up:
+        return said("Gave up", f"Nowhere left to explore and no candidate for {what}, {tail}.{scored}", tone)
+    if outcome == "failure":
+        return said("Wrong place", f"Stopped, but not close enough to {what}, {tail}{near}.", "bad")
+    return said("Stopped at what it took for the object", f"It stopped by itself {tail}.{scored}", "neutral")
 
 
 def timing_rows(timings: Mapping[str, Any]) -> list[tuple[str, str]]:
@@ -198,22 +167,76 @@ def timing_rows(timings: Mapping[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+# What a step does (agent.events.Event values) and what it was decided in (agent.events.Context
+# values), as an operator would say them. The agent's own reason is the technical line (step_detail).
+EVENT_WORDS: dict[str, str] = {
+    "look_around": "looking around",
+    "frontier": "exploring",
+    "rescan": "nowhere new to explore: looking around again",
+    "exhausted": "nowhere left to explore and no candidate: giving up",
+    "approach": "driving to the object",
+    "goal_not_reachable_yet": "turning to find a way to the object",
+    "face_goal": "at the object, turning to face it",
+    "stop_at_goal": "at the object and facing it: stopping",
+    "verify_approach": "driving closer to check a possible match",
+    "verify_ring_not_reachable_yet": "turning to find a way to check a possible match",
+    "verify_face": "turning to look at a possible match",
+    "verify_look": "checking a possible match up close",
+    "verify_step_nearer": "checking a possible match, stepping nearer",
+}
+
+CONTEXT_WORDS: dict[str, str] = {
+    "side_step": "stepping aside after turning to and fro",
+    "second_look": "a second look at the views kept",
+    "deadline": "few steps left",
+    "deadline_over_weaker": "few steps left",
+    "last_resort": "back to the best candidate left",
+    "ring_confirmed": "recognised from nearby",
+}
+
+
+def doing_words(step: Mapping[str, Any]) -> str:
+    """What the robot is doing at a step, in plain words: its event (and contexts) when the
+    record has them, else its mode (older runs)."""
+    event = step.get("event")
+    text = EVENT_WORDS.get(event, "") if isinstance(event, str) else ""
+    if not text:
+        return mode_words(step.get("mode")) or "acting"
+    contexts = [CONTEXT_WORDS[c] for c in step.get("context") or () if c in CONTEXT_WORDS]
+    if contexts:
+        text += f" ({'; '.join(dict.fromkeys(contexts))})"
+    return text
+
+
 def step_words(step: Mapping[str, Any]) -> str:
-    """One step as a sentence: "Step 12: exploring (frontier ...), turn left; match 4.1 of 75.3"."""
-    parts = [f"Step {int(step.get('step', 0)) + 1}: {mode_words(step.get('mode')) or 'acting'}"]
-    if step.get("reason"):
-        parts[0] += f" ({step['reason']})"
+    """One step as a sentence for the operator: "Step 12: exploring, turn left, match 4.1 of 75.3
+    needed". The agent's technical reason is ``step_detail``."""
+    parts = [f"Step {int(step.get('step', 0)) + 1}: {doing_words(step)}"]
     action = step.get("action_name")
     if action:
         parts.append(action_words(action))
     score, tau = step.get("reid_score"), step.get("reid_tau")
-    gate, exit_score = step.get("reid_gate_score"), step.get("reid_exit_score")
-    if step.get("reid_full_matcher") is False and isinstance(exit_score, (int, float)):
-        # the matcher's first layers already matched too little of the goal photo to go on
-        parts.append(f"goal not in view (early match {exit_score:.1f})")
-    elif step.get("reid_full_matcher") is False and isinstance(gate, (int, float)):
-        # the cheap first stage saw too little in common with the goal photo to run the matcher
-        parts.append(f"goal not in view (quick check {gate:.0f})")
+    if step.get("reid_full_matcher") is False:
+        parts.append("goal not in view")  # a cheap first check saw too little of the goal photo
     elif isinstance(score, (int, float)):
         parts.append(f"match {score:.1f}" + (f" of {tau:.1f} needed" if isinstance(tau, (int, float)) else ""))
     return ", ".join(parts)
+
+
+def step_detail(step: Mapping[str, Any]) -> str:
+    """The technical line behind a step's words: the agent's reason, its event and contexts, and
+    which stage of re-identification answered."""
+    parts = []
+    if step.get("reason"):
+        parts.append(f"agent: {step['reason']}")
+    if step.get("event"):
+        ctx = ", ".join(step.get("context") or ())
+        parts.append(f"event {step['event']}" + (f" in {ctx}" if ctx else ""))
+    gate, exit_score = step.get("reid_gate_score"), step.get("reid_exit_score")
+    if step.get("reid_full_matcher") is False and isinstance(exit_score, (int, float)):
+        parts.append(f"re-ID: early exit at {exit_score:.1f}")
+    elif step.get("reid_full_matcher") is False and isinstance(gate, (int, float)):
+        parts.append(f"re-ID: gate score {gate:.0f}, matcher not run")
+    elif isinstance(step.get("reid_score"), (int, float)):
+        parts.append(f"re-ID: score {step['reid_score']:.2f}, tau {step.get('reid_tau')}")
+    return "; ".join(parts)

@@ -16,7 +16,7 @@ from console.deps import ConsoleDep, TokenDep, error
 from console.jsonio import json_safe
 from console.replay import map_picture, replay_marks
 from console.routes.runs import get_row
-from console.words import action_words, mode_words, step_words
+from console.words import action_words, mode_words, step_detail, step_words
 
 router = APIRouter(tags=["replay"])
 
@@ -43,6 +43,7 @@ def replay_index(run_id: str, console: ConsoleDep) -> dict[str, Any]:
                 "action_words": action_words(s["action_name"]),
                 "mode_words": mode_words(s["mode"]),
                 "words": step_words(s),
+                "detail": step_detail(s),
                 "pose": [s["x_m"], s["y_m"], s["yaw_rad"]],
                 "n_candidates": len([c for c in cands if c.get("state") != "rejected"]),
                 "has_frame": s["step"] in extras,
@@ -83,6 +84,7 @@ def replay_step(run_id: str, console: ConsoleDep, step: int = StepParam) -> dict
         {
             **me,
             "words": step_words(me),
+            "detail": step_detail(me),
             "mode_words": mode_words(me["mode"]),
             "candidates": ex.get("candidates", []),
             "target": ex.get("target"),

@@ -58,7 +58,9 @@ def test_timeline_marks_and_pictures(finished) -> None:
     assert marks["first_detection"] == 3 and marks["stop"] == 25
     assert marks["candidate_rejected"] == [{"step": 6, "candidate": 1}]
     first = replay["steps"][0]
-    assert first["words"].startswith("Step 1: exploring (scripted step 0), forward")
+    # plain words for the operator; the agent's reason is the technical line behind them
+    assert first["words"].startswith("Step 1: exploring, forward") and "scripted" not in first["words"]
+    assert "agent: scripted step 0" in first["detail"] and "event frontier" in first["detail"]
     assert first["mode_words"] == "exploring" and first["action_words"] == "forward"
     step = client.get(f"/api/runs/{run_id}/replay/4").json()
     assert step["candidates"][0]["state"] == "confirmed" and step["candidates"][0]["distance_m"] == 0.4
