@@ -16,6 +16,10 @@ earlier run (the scene is static: same world, target and start, same values).
   frame, goal position, viewpoints, navigable map, world pose). Default agents are
   never given it; oracle ablations, metrics and failure analysis are.
 * ``result()``: ``EpisodeMetrics`` once the episode is over (None if unscored).
+* ``realism``: a ``sim.realism.Realism`` (profile and seed) puts a real robot's senses and motion
+  around the exact world: the agent gets noisy frames, an estimated pose and a phone-like goal
+  photo, moves land where the actuation model says; ``pose_world``, the trajectory, the oracle
+  and the metrics stay true. ``estimate_trajectory_world`` is what the agent believed.
 """
 
 from __future__ import annotations
@@ -29,12 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.types import MAX_STEPS, Action, BackendError, Observation, Pose2D
+from agent.types import FORWARD_STEP_M, MAX_STEPS, TURN_ANGLE_DEG, Action, BackendError, Observation, Pose2D
 from sim.camera import SIM_CAMERA, CameraSpec, Render
 from sim.episodes import Episode, read_rgb
 from sim.geometry import NavGrid
 from sim.metrics import EpisodeMetrics, episode_metrics
 from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, instance_viewpoints, reachable_component
+from sim.realism import Realism, RealismRun
 from sim.world import SimWorld
 
 log = logging.getLogger(__name__)
@@ -63,6 +68,17 @@ def goal_scoring(world: SimWorld, goal_instance_id: int, free: np.ndarray) -> Go
     viewpoints = np.asarray(instance_viewpoints(world, goal_instance_id, free), float).reshape(-1, 2)
     field = geodesic_field(world.navigable_grid(GRID_RESOLUTION_M), viewpoints) if len(viewpoints) else None
     return GoalScoring(viewpoints, field)
+
+
+def _commanded(action: Action) -> Pose2D:
+    """The motion an action commands, in the robot's frame."""
+    if action == Action.MOVE_FORWARD:
+        return Pose2D(FORWARD_STEP_M, 0.0, 0.0)
+    if action == Action.TURN_LEFT:
+        return Pose2D(0.0, 0.0, math.radians(TURN_ANGLE_DEG))
+    if action == Action.TURN_RIGHT:
+        return Pose2D(0.0, 0.0, -math.radians(TURN_ANGLE_DEG))
+    return Pose2D()
 
 
 class SimOracle:
@@ -179,19 +195,26 @@ class SimBackend:
         episode: Episode | None = None,
         scoring: Callable[[], GoalScoring] | None = None,
         start_render: Callable[[], Render] | None = None,
+        realism: Realism | None = None,
+        run_key: str | None = None,
     ) -> None:
         """``scoring``: the target's ``GoalScoring`` for this world and start (used only when
         ``goal_instance_id`` is given without ``viewpoints_xy_m``; default: ``goal_scoring``),
         called when first needed. ``start_render``: the frame at the start pose with this
         camera, called instead of rendering it (at ``reset``); it must return arrays the run
-        may keep."""
+        may keep. ``realism``: the profile and seed of the run's noise (None: exact), keyed by
+        ``run_key`` (default: the episode id)."""
         goal_image = np.asarray(goal_image)
         if goal_image.ndim != 3 or goal_image.shape[2] != 3 or goal_image.dtype != np.uint8:
             raise ValueError("goal_image must be (h, w, 3) uint8 RGB")
         if world.collides(start_pose_world.x_m, start_pose_world.y_m):
             raise ValueError(f"start pose {start_pose_world} collides with the scene")
         self.world = world
-        self.goal_image = goal_image
+        self.realism = realism
+        self.run_key = run_key or (episode.episode_id if episode is not None else "run")
+        start = realism.start(self.run_key) if realism is not None else None
+        self.goal_image_rendered = goal_image
+        self.goal_image = start.goal_photo(goal_image) if start is not None else goal_image
         self.start_pose_world = start_pose_world
         self.goal_instance_id = goal_instance_id
         self.camera = camera
@@ -246,6 +269,12 @@ class SimBackend:
         self.actions: list[Action] = []
         self._render: Render | None = None
         self._render_pose: Pose2D | None = None
+        # the run's noise starts again at every reset (the same run, the same noise)
+        self._noise: RealismRun | None = self.realism.start(self.run_key) if self.realism is not None else None
+        if self._noise is not None:
+            self._noise.start_estimate(self.start_pose_world)
+        self.estimate_trajectory_world: list[Pose2D] = [self.start_pose_world]
+        self._sensed: tuple[int, np.ndarray, np.ndarray] | None = None
 
     @property
     def viewpoints_world(self) -> np.ndarray:
@@ -281,13 +310,19 @@ class SimBackend:
         if self._closed:
             raise BackendError("closed", "backend is closed")
         r = self.current_render()
+        rgb, depth = r.rgb, r.depth_m
+        if self._noise is not None:
+            # one draw of sensor noise per step: observing twice gives the same frame
+            if self._sensed is None or self._sensed[0] != self.steps:
+                noisy_depth = self._noise.depth(r.depth_m, r.rgb, self.camera.intrinsics.fx)
+                self._sensed = (self.steps, self._noise.rgb(r.rgb), noisy_depth)
+            rgb, depth = self._sensed[1], self._sensed[2]
+        believed = self.estimate_world
         # exactly (0, 0, 0) at the start (the Backend contract), not 1e-16 from the frame change
-        pose = (
-            Pose2D() if self.pose_world == self.start_pose_world else self.pose_world.relative_to(self.start_pose_world)
-        )
+        pose = Pose2D() if believed == self.start_pose_world else believed.relative_to(self.start_pose_world)
         return Observation(
-            rgb=r.rgb,
-            depth_m=r.depth_m,
+            rgb=rgb,
+            depth_m=depth,
             pose=pose,
             intrinsics=self.camera.intrinsics,
             goal_image=self.goal_image,
@@ -310,7 +345,13 @@ class SimBackend:
             self.done = True
             self.stop_reason = "stop"
         else:
-            new, moved = self.world.move(self.pose_world, action)
+            before = self.pose_world
+            if self._noise is None:
+                new, moved = self.world.move(before, action)
+            else:
+                forward_m, lateral_m, turn_rad, slipped = self._noise.actual_motion(action)
+                new, moved = self.world.move_by(before, forward_m, lateral_m, turn_rad)
+                self._noise.update_estimate(action, before, new, slipped, _commanded(action), self.steps)
             if moved and action == Action.MOVE_FORWARD:
                 self.path_length_m += math.hypot(new.x_m - self.pose_world.x_m, new.y_m - self.pose_world.y_m)
             self.pose_world = new
@@ -318,6 +359,14 @@ class SimBackend:
                 self.done = True
                 self.stop_reason = "max_steps"
         self.trajectory_world.append(self.pose_world)
+        self.estimate_trajectory_world.append(self.estimate_world)
+
+    @property
+    def estimate_world(self) -> Pose2D:
+        """The pose the agent believes it has (world frame); the true pose without pose noise."""
+        if self._noise is None or self._noise.estimate_world is None:
+            return self.pose_world
+        return self._noise.estimate_world
 
     def close(self) -> None:
         if not self._closed:

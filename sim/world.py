@@ -275,25 +275,36 @@ class SimWorld:
         return self.footprints.collides(x_m, y_m)
 
     def move(self, pose_world: Pose2D, action: Action) -> tuple[Pose2D, bool]:
+        """The exact motion model: 0.25 m forward (blocked as a whole by a collision), 30 deg turns."""
         if action == Action.MOVE_FORWARD:
-            dx = FORWARD_STEP_M * math.cos(pose_world.yaw_rad)
-            dy = FORWARD_STEP_M * math.sin(pose_world.yaw_rad)
-            for k in range(1, _SWEEP_SAMPLES + 1):
-                t = k / _SWEEP_SAMPLES
-                if self.collides(pose_world.x_m + t * dx, pose_world.y_m + t * dy):
-                    return pose_world, False
-            return Pose2D(pose_world.x_m + dx, pose_world.y_m + dy, pose_world.yaw_rad), True
+            return self.move_by(pose_world, FORWARD_STEP_M)
         if action == Action.TURN_LEFT:
-            return Pose2D(
-                pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad + math.radians(TURN_ANGLE_DEG))
-            ), True
+            return self.move_by(pose_world, 0.0, turn_rad=math.radians(TURN_ANGLE_DEG))
         if action == Action.TURN_RIGHT:
-            return Pose2D(
-                pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad - math.radians(TURN_ANGLE_DEG))
-            ), True
+            return self.move_by(pose_world, 0.0, turn_rad=-math.radians(TURN_ANGLE_DEG))
         if action == Action.STOP:
             return pose_world, False
         raise ValueError(f"unknown action {action!r}")
+
+    def move_by(
+        self, pose_world: Pose2D, forward_m: float, lateral_m: float = 0.0, turn_rad: float = 0.0
+    ) -> tuple[Pose2D, bool]:
+        """A move of any size (the realism profiles' actuation): a translation in the robot's
+        frame, swept for collisions (a collision anywhere blocks the whole move, as the exact
+        model's), then a turn in place. Returns (new pose, moved)."""
+        if forward_m == 0.0 and lateral_m == 0.0:
+            if turn_rad == 0.0:
+                return pose_world, False
+            return Pose2D(pose_world.x_m, pose_world.y_m, wrap_angle(pose_world.yaw_rad + turn_rad)), True
+        c, s = math.cos(pose_world.yaw_rad), math.sin(pose_world.yaw_rad)
+        dx = forward_m * c - lateral_m * s
+        dy = forward_m * s + lateral_m * c
+        for k in range(1, _SWEEP_SAMPLES + 1):
+            t = k / _SWEEP_SAMPLES
+            if self.collides(pose_world.x_m + t * dx, pose_world.y_m + t * dy):
+                return pose_world, False
+        yaw = pose_world.yaw_rad if turn_rad == 0.0 else wrap_angle(pose_world.yaw_rad + turn_rad)
+        return Pose2D(pose_world.x_m + dx, pose_world.y_m + dy, yaw), True
 
     def navigable_grid(self, resolution_m: float = 0.05) -> NavGrid:
         key = round(resolution_m, 6)

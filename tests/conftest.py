@@ -23,11 +23,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 INTEGRATION = Path(__file__).parent / "integration"
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    xdist = config.pluginmanager.hasplugin("xdist")  # absent with `-p no:xdist`: no groups
     for item in items:
         if item.path.is_relative_to(INTEGRATION):
             item.add_marker(pytest.mark.integration)
         # `make test` spreads tests over xdist workers one by one (--dist loadgroup), but
+        if not xdist:
+            continue
         if "browser" in getattr(item, "fixturenames", ()):
             # the browser tests run one after another: two headless Chromiums drawing the 3D
             # viewer in software at once starve each other (page timeouts at load 9)

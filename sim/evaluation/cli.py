@@ -41,10 +41,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fail-fast", action="store_true", help="stop at the first episode error instead of recording it"
     )
+    add_realism_arguments(parser)
     add_ray_arguments(parser)
     for spec in specs:
         if spec.add_arguments:
             spec.add_arguments(parser.add_argument_group(f"{spec.name} agent"))
+
+
+def add_realism_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--realism`` and its options (``imgnav eval`` and ``imgnav console``; sim/realism.py)."""
+    from sim.realism import COMPONENTS, PROFILES
+
+    g = parser.add_argument_group("realism (a real Stretch's senses and motion; docs/realism.md)")
+    g.add_argument(
+        "--realism",
+        default="clean",
+        choices=list(PROFILES),
+        help="noise profile of the simulated robot: clean (exact, the headline) or stretch",
+    )
+    g.add_argument(
+        "--realism-only",
+        nargs="+",
+        default=None,
+        choices=list(COMPONENTS),
+        metavar="PART",
+        help=f"only these components of the profile (the others exact): {', '.join(COMPONENTS)}",
+    )
+    g.add_argument("--realism-seed", type=int, default=0, help="seed of the noise (with the episode id)")
+
+
+def realism_of(args: argparse.Namespace):
+    """The ``Realism`` of the parsed flags (None: exact, the clean profile)."""
+    from sim.realism import Realism, get_profile
+
+    profile = get_profile(getattr(args, "realism", "clean") or "clean", getattr(args, "realism_only", None))
+    return None if profile.clean else Realism(profile, int(getattr(args, "realism_seed", 0) or 0))
 
 
 def add_ray_arguments(parser: argparse.ArgumentParser) -> None:

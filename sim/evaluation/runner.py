@@ -62,6 +62,7 @@ import numpy as np
 from agent.loop import LoopError, LoopStep, run_loop
 from sim.backend import SimBackend
 from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
+from sim.evaluation.cli import realism_of
 from sim.evaluation.registry import AgentSpec, get_spec
 from sim.metrics import aggregate
 from sim.world import SimWorld
@@ -113,7 +114,8 @@ def run_episode(
     t0 = time.perf_counter()
     if isinstance(goal_image, EpisodeSet):
         goal_image = goal_image.goal_image_path(episode)
-    backend = SimBackend.for_episode(world, episode, goal_image)
+    realism = realism_of(args)
+    backend = SimBackend.for_episode(world, episode, goal_image, realism=realism)
     agent_s = sim_s = 0.0
     error = None
     observer = None
@@ -166,6 +168,11 @@ def run_episode(
         },
         "error": error,
     }
+    if realism is not None:
+        record["realism"] = realism.describe()
+        record["trajectory"]["poses_estimate_world"] = [
+            [r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)] for p in backend.estimate_trajectory_world
+        ]
     if observer is not None and error is None:
         record.update(dict(observer.finish(record)))
     backend.close()
@@ -343,6 +350,14 @@ def run_evaluation(
         raise ValueError(
             f"{out / RECORDS} holds records of agent(s) {sorted(map(str, others))}; use another --out or --overwrite"
         )
+    realism = realism_of(args)
+    wanted_realism = realism.describe() if realism is not None else None
+    mixed = {json.dumps(r.get("realism")) for r in done.values()} - {json.dumps(wanted_realism)}
+    if mixed:
+        raise ValueError(
+            f"{out / RECORDS} holds records made with another realism profile ({', '.join(sorted(mixed))}); "
+            "use another --out or --overwrite"
+        )
     todo = [e for e in selected if e.episode_id not in done]
     groups: dict[int, list[str]] = {}
     for e in todo:
@@ -412,6 +427,7 @@ def run_evaluation(
     summary.update(
         {
             "agent": agent,
+            "realism": wanted_realism or {"profile": "clean"},
             "episode_set": str(episode_dir),
             "split": es.split,
             "errors": sum(1 for r in records if r.get("error")),
