@@ -47,6 +47,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stretch-host", default=None, help="offer the Stretch backend: the robot's address (stretch_ai bridge)"
     )
     parser.add_argument("--agent-config", type=Path, default=None, help="agent YAML (default: agent/configs/sim.yaml)")
+    from sim.evaluation.cli import add_realism_arguments
+
+    # the simulated robot's senses and motion (docs/realism.md); the goal is the operator's own photo,
+    # so the profile's goal-photo part does not apply here
+    add_realism_arguments(parser)
     parser.add_argument(
         "--allowed-host",
         action="append",

@@ -28,6 +28,7 @@ from console.photos import dhash
 from console.session import Outcome
 from console.sim_cache import WorldCache, kept_scoring, kept_start_render
 from console.sim_catalog import GalleryItem, HomeEntry, Start
+from sim.realism import Realism
 
 logger = logging.getLogger(__name__)
 
@@ -240,6 +241,8 @@ def open_session(
     max_steps: int,
     agent_config_path: Path | None,
     worlds: WorldCache | None = None,
+    realism: Realism | None = None,
+    run_key: str | None = None,
 ) -> SimSession:
     from sim.backend import SimBackend
     from sim.camera import SIM_CAMERA
@@ -266,6 +269,8 @@ def open_session(
             max_steps=max_steps,
             owns_world=owns,
             camera=SIM_CAMERA,
+            realism=realism,
+            run_key=run_key,
             **extra,
         )
         t1 = time.perf_counter()
@@ -285,6 +290,7 @@ def open_episode_session(
     max_steps: int,
     agent_config_path: Path | None,
     worlds: WorldCache | None = None,
+    realism: Realism | None = None,
 ) -> SimSession:
     """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
     from sim.backend import SimBackend
@@ -302,7 +308,14 @@ def open_episode_session(
         extra["start_render"] = kept_start_render(worlds, key, world, episode.start_pose_world, SIM_CAMERA)
     try:
         backend = SimBackend.for_episode(
-            world, episode, goal_rgb, max_steps=max_steps, owns_world=owns, camera=SIM_CAMERA, **extra
+            world,
+            episode,
+            goal_rgb,
+            max_steps=max_steps,
+            owns_world=owns,
+            camera=SIM_CAMERA,
+            realism=realism,
+            **extra,
         )
         t1 = time.perf_counter()
         agent, agent_config = build_agent(agent_config_path or "sim")

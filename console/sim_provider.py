@@ -36,6 +36,7 @@ from console.options import RunForm, SimRunOptions
 from console.photos import hamming
 from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession
 from console.sim_catalog import GalleryItem, HomeEntry, Start
+from sim.realism import Realism
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +54,7 @@ class SimProviderConfig:
     starts_per_home: int = 4
     agent_config_path: Path | None = None  # None: the agent's sim deployment YAML
     episodes_dir: Path | None = None  # an episode set (``imgnav episodes``) offered as run choices
+    realism: Realism | None = None  # the simulated robot's noise (``--realism``); None: exact
 
 
 class SimProvider:
@@ -62,6 +64,8 @@ class SimProvider:
     def __init__(self, data_dir: Path, config: SimProviderConfig = SimProviderConfig()) -> None:
         self.dir = Path(data_dir) / "sim"
         self.config = config
+        if config.realism is not None:
+            self.label = f"Simulator (PyBullet home, {config.realism.profile.name} realism)"
         self._lock = threading.Lock()
         self._homes: dict[str, HomeEntry] = {}
         self._ready = False
@@ -369,6 +373,7 @@ class SimProvider:
                 max_steps=spec.max_steps,
                 agent_config_path=self.config.agent_config_path,
                 worlds=self.worlds(),
+                realism=self.config.realism,
             )
         target = resolved.target
         return sim_adapter.open_session(
@@ -380,6 +385,8 @@ class SimProvider:
             max_steps=spec.max_steps,
             agent_config_path=self.config.agent_config_path,
             worlds=self.worlds(),
+            realism=self.config.realism,
+            run_key=f"home-{spec.home_seed}-{spec.start_pose_world}",  # a start's noise is repeatable
         )
 
     def close(self) -> None:

@@ -7,7 +7,8 @@
 
 Maps show rooms, labelled goal instances (coloured by category), clutter (grey),
 walls, non-navigable floor (darker); for an episode its start (red), the goal's
-viewpoints (green) and the path an agent took (blue, from an eval's episodes.jsonl).
+viewpoints (green) and the path an agent took (blue, from an eval's episodes.jsonl); a run
+under a realism profile's pose noise also shows the path the agent believed it took (orange) and the largest gap between the two.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -52,6 +54,11 @@ def _episode_map(es, episode, eval_dir: str | None):
             log.warning("no record of %s in %s", episode.episode_id, eval_dir)
         else:
             poses = rec["trajectory"]["poses_world"]
+            believed = rec["trajectory"].get("poses_estimate_world")
+            if believed:
+                td.draw_path(believed, (255, 140, 0))
+                gap = max(math.hypot(a[0] - b[0], a[1] - b[1]) for a, b in zip(poses, believed))
+                title += f" | believed path (orange): up to {gap:.2f} m off"
             td.draw_path(poses)
             x, y, yaw = poses[-1]
             td.draw_pose(x, y, yaw, (0, 90, 230), "stop")

@@ -18,8 +18,8 @@ HOME_SEED = 0
 ARTIFACTS = artifacts_dir("console")  # screenshots: outside the checkout
 
 
-def sim_console(data_dir: Path, viewer: bool = False, **config: Any) -> Console:
-    provider = SimProvider(data_dir, SimProviderConfig(home_seeds=(HOME_SEED,)))
+def sim_console(data_dir: Path, viewer: bool = False, realism: Any = None, **config: Any) -> Console:
+    provider = SimProvider(data_dir, SimProviderConfig(home_seeds=(HOME_SEED,), realism=realism))
     assert provider.available()[0], "the simulator cache should be prepared by sim_data_dir"
     config.setdefault("allowed_hosts", ("testserver",))  # the TestClient's Host
     return Console(

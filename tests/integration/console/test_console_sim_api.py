@@ -117,6 +117,35 @@ def test_reencoded_gallery_photo_is_identified_and_unknown_photo_is_unscored(cli
     assert done["outcome"] == "unscored" and "not scored" in done["outcome_detail"]
 
 
+def test_a_search_under_the_stretch_profile(data_dir: Path) -> None:
+    """``imgnav console --realism stretch``: the simulated robot has the profile's senses and motion."""
+    import argparse
+    import json
+    import math
+
+    from console.providers import console_realism
+
+    realism = console_realism(argparse.Namespace(realism="stretch", realism_only=None, realism_seed=0))
+    assert realism is not None and "goal_photo" not in realism.profile.components  # the operator's photo is real
+    with TestClient(create_app(sim_console(data_dir, realism=realism))) as client:
+        desc = client.get("/api/backends/sim").json()
+        assert "stretch" in desc["label"], desc["label"]
+        h = desc["homes"][0]
+        g, start = pick_target(h)
+        run = client.post(
+            "/api/runs",
+            files={"goal_image": ("goal.png", gallery_png(client, g), "image/png")},
+            data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "8"},
+        ).json()
+        done = wait_final(client, run["id"])
+        assert done["status"] == "finished" and done["outcome"] in ("success", "failure"), done
+        traj = json.loads(client.get(done["artifacts"]["trajectory.json"]).content)
+        xy = [(s["x_m"], s["y_m"]) for s in traj["steps"]]
+        steps = [math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:])]
+        # moves land off the exact 0.25 m lattice (the actuation model), at least one of the moves made
+        assert any(s > 0.01 and abs(s - 0.25) > 0.003 for s in steps), steps
+
+
 def test_second_run_409_and_stop_mid_run(client: TestClient) -> None:
     h = home(client)
     g = h["gallery"][0]
@@ -167,6 +196,7 @@ def test_bad_simulator_options(client: TestClient) -> None:
         # custom starts that the robot cannot stand on: refused at upload, not in the run's history
         ({"start": "0,0,0"}, "not a free position"),
         ({"start": "1000,1000,0"}, "not a free position"),
+        ({"start": "1e308,0,0"}, "start (1e+308, 0.00) is not a free position"),  # not its 309 digits
     ]:
         resp = client.post("/api/runs", files={"goal_image": ("g.png", png, "image/png")}, data=data)
         assert resp.status_code == 422, (data, resp.text)
