@@ -47,6 +47,7 @@ from console.replay import ReplayRecorder
 from console.session import BackendProvider, Outcome, ResolvedRun, RunSession, StepRecord
 from console.step_schema import StepRow
 from console.store import RunStore
+from console.words import distance_driven_m, run_summary
 
 logger = logging.getLogger(__name__)
 
@@ -64,7 +65,9 @@ class ViewerSink(Protocol):
 
     def offer(self, rec: StepRecord) -> None: ...
 
-    def run_ended(self, run_id: str, status: str, outcome: Outcome) -> None: ...
+    def run_ended(
+        self, run_id: str, status: str, outcome: Outcome, summary: Mapping[str, str] | None = None
+    ) -> None: ...
 
 
 @dataclass(slots=True)
@@ -329,7 +332,10 @@ class RunManager:
         )
         if self.viewer is not None:
             try:
-                self.viewer.run_ended(run_id, status, outcome)
+                # the run in the pages' words (the stored row: target, times, steps)
+                row = self.store.get_run(run_id)
+                said = run_summary(row, distance_driven_m(traj_rows)) if row is not None else None
+                self.viewer.run_ended(run_id, status, outcome, said)
             except Exception:
                 logger.exception("viewer failed at the end of run %s", run_id)
         logger.info("run %s %s: %s (%s) after %d steps", run_id, status, outcome.outcome, outcome.detail, n_steps)

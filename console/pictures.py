@@ -22,13 +22,16 @@ EXPLORED_RGB = (196, 208, 228)  # light blue-grey: visible on white pages and vi
 VISITED_RGB = (178, 222, 186)
 OBSTACLE_RGB = (70, 78, 110)
 FRONTIER_RGB = (0, 190, 220)
-BLACKLIST_RGB = (150, 90, 190)
-COLLISION_RGB = (255, 140, 0)
+# each colour means one thing (the pages' legends, static/common.js): the purple of a rejected
+# candidate (console/viewer/scene.py) is not a map layer's
+BLACKLIST_RGB = (128, 128, 128)  # given up: rejected candidates' and abandoned frontiers' cells
+COLLISION_RGB = (140, 60, 20)  # not the orange of a potential candidate
 GOAL_RGB = (230, 30, 40)
 TRAJECTORY_RGB = (20, 130, 60)
 PLAN_RGB = (250, 180, 0)
 TARGET_RGB = (255, 0, 200)
 ROBOT_RGB = (20, 90, 230)
+CANDIDATE_MARK_RGB = (255, 140, 0)  # a goal candidate not rejected (a cross)
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,7 +152,7 @@ def render_map(
     for u_px, v_px in np.round(view.to_px(goal_xy)).astype(np.int32):
         cv2.circle(canvas, (int(u_px), int(v_px)), max(2, thick + 1), GOAL_RGB, -1, cv2.LINE_AA)
     for u_px, v_px in np.round(view.to_px(extra)).astype(np.int32):
-        cv2.drawMarker(canvas, (int(u_px), int(v_px)), (200, 0, 0), cv2.MARKER_TILTED_CROSS, 6 * thick, thick)
+        cv2.drawMarker(canvas, (int(u_px), int(v_px)), CANDIDATE_MARK_RGB, cv2.MARKER_TILTED_CROSS, 6 * thick, thick)
     if len(target):
         u_px, v_px = np.round(view.to_px(target)[0]).astype(int)
         cv2.drawMarker(canvas, (int(u_px), int(v_px)), TARGET_RGB, cv2.MARKER_STAR, 8 * thick, thick, cv2.LINE_AA)

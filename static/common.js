@@ -95,17 +95,55 @@ const imgnav = (() => {
 
   function duration(seconds) {
     if (seconds === null || seconds === undefined || !isFinite(seconds)) return "-";
+    if (seconds < 10) return `${Math.max(0, seconds).toFixed(1)} s`;  // as console/words.py says it
     const s = Math.round(seconds);
     if (s < 60) return `${s} s`;
     const m = Math.floor(s / 60);
     return m < 60 ? `${m} min ${s % 60} s` : `${Math.floor(m / 60)} h ${m % 60} min`;
   }
 
-  // A run's outcome in words: headline badge and sentence (from the API's "summary").
+  // A run's outcome in words: the headline, then the sentence (which never repeats it), and the
+  // technical account behind a disclosure (from the API's "summary").
   function summary(run) {
     const s = run.summary || { headline: run.status, sentence: "", tone: "neutral" };
-    return el("div", { class: `summary ${s.tone}` }, el("strong", { class: "headline", text: s.headline }), " ",
+    const box = el("div", { class: `summary ${s.tone}` }, el("strong", { class: "headline", text: `${s.headline}.` }), " ",
       el("span", { class: "sentence", text: s.sentence }));
+    if (s.detail) box.append(technical(s.detail));
+    return box;
+  }
+
+  // A technical line for people who want it, closed by default.
+  function technical(text, label = "Technical details") {
+    return el("details", { class: "tech" }, el("summary", { text: label }), el("p", { text }));
+  }
+
+  // Legends: the colours of the 3D view (console/viewer/scene.py) and of the 2D map pictures
+  // (console/pictures.py); each colour means one thing.
+  const LEGENDS = {
+    scene: [
+      ["robot", "#2864e6", "robot and camera"], ["trajectory", "#14963c", "path driven"],
+      ["plan", "#fab400", "planned path"], ["frontier-target", "#ff00c8", "frontier target"],
+      ["goal", "#e61e28", "goal points / goal target"], ["potential", "#ff8c00", "candidate (potential)"],
+      ["confirmed", "#00b450", "candidate (confirmed)"], ["rejected", "#9a5abe", "candidate rejected"],
+      ["walls", "#5a648c", "walls and furniture"], ["explored", "#c4d0e4", "floor seen"],
+      ["frontier", "#00bedc", "edge of the explored area"], ["collision", "#8c3c14", "bumped into"],
+      ["blacklist", "#808080", "given up (not searched again)"],
+    ],
+    map: [
+      ["robot", "#145ae6", "robot"], ["trajectory", "#14823c", "path driven"], ["plan", "#fab400", "planned path"],
+      ["target", "#ff00c8", "target"], ["goal", "#e61e28", "goal points"], ["candidate", "#ff8c00", "goal candidate"],
+      ["explored", "#c4d0e4", "floor seen"], ["visited", "#b2deba", "floor driven over"],
+      ["obstacle", "#464e6e", "walls and furniture"], ["frontier", "#00bedc", "edge of the explored area"],
+      ["collision", "#8c3c14", "bumped into"], ["blacklist", "#808080", "given up (not searched again)"],
+      ["unknown", "#30343c", "not seen yet"],
+    ],
+  };
+  function legend(kind, id) {
+    const box = el("p", { class: "legend", id: id || `legend-${kind}` });
+    for (const [key, colour, text] of LEGENDS[kind]) {
+      box.append(el("span", { "data-key": key }, el("i", { style: `background:${colour}` }), text));
+    }
+    return box;
   }
 
   // Goal candidates as a table: state, views, best score, distance.
@@ -136,8 +174,14 @@ const imgnav = (() => {
       this.busy = true; this.last = now;
       const p = this.pending;
       // the latest step whose pictures are stored (the step event can arrive just before they are)
-      getJSON(`/api/runs/${p.runId}/replay/latest`).then(this.onData).catch(() => {}).finally(() => { this.busy = false; });
+      getJSON(`/api/runs/${p.runId}/replay/latest`).then((s) => this.onData(s, p.runId)).catch(() => {}).finally(() => { this.busy = false; });
     }
+  }
+
+  // The best goal candidate not rejected (highest score), or null.
+  function bestCandidate(cands) {
+    const live = (cands || []).filter((c) => c.state !== "rejected");
+    return live.length ? live.reduce((a, b) => (b.best_score > a.best_score ? b : a)) : null;
   }
 
   function viewerURL(config) {
@@ -220,8 +264,10 @@ const imgnav = (() => {
       if (!home) return;
       for (const s of home.starts) this.startSel.append(el("option", { value: s.id, text: s.label }));
       for (const g of home.gallery) {
-        const fig = el("figure", { "data-item": g.item, title: g.label },
-          el("img", { src: g.url, alt: g.label, loading: "lazy" }), el("figcaption", { text: g.label }));
+        // a button for the keyboard too (Enter or Space picks it)
+        const fig = el("figure", { "data-item": g.item, title: g.label, role: "button", tabindex: "0", "aria-label": `use ${g.label} as the goal photo` },
+          el("img", { src: g.url, alt: "", loading: "lazy" }), el("figcaption", { text: g.label }));
+        fig.addEventListener("keydown", (ev) => { if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); fig.click(); } });
         fig.addEventListener("click", async () => {
           for (const f of this.gallery.querySelectorAll("figure")) f.classList.remove("selected");
           fig.classList.add("selected");
@@ -264,6 +310,6 @@ const imgnav = (() => {
 
   return {
     token, getJSON, postForm, postJSON, el, badge, fmt, follow, viewerURL, BackendForm, describeError,
-    modeWords, actionWords, duration, summary, candidatesTable, LivePeek,
+    modeWords, actionWords, duration, summary, technical, legend, candidatesTable, LivePeek, bestCandidate,
   };
 })();

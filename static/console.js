@@ -16,6 +16,8 @@
 
   const config = await imgnav.getJSON("/api/config");
   const viewer = imgnav.viewerURL(config);
+  $("legend-box").replaceChildren(imgnav.legend("scene", "legend"));
+  $("live-legend-box").replaceChildren(imgnav.legend("map", "live-legend"));
   if (viewer) { $("viewer-frame").src = viewer; $("viewer-link").href = viewer; }
   else { $("viewer-link").hidden = true; $("legend").hidden = true; }
   if (config.token_required) {
@@ -61,8 +63,10 @@
     $("stop").disabled = !runId;
     $("start").disabled = !!runId || !photo;
     // the live card stays after the run ends, with its last state, until the next run starts
-    if (runId) { $("live-card").hidden = false; $("live-id").textContent = runId; $("live-state").textContent = ""; }
-    else if (!$("live-card").hidden) $("live-state").textContent = " (ended)";
+    if (runId && $("live-id").textContent !== runId) {
+      $("live-card").hidden = false; $("live-id").textContent = runId; $("live-state").textContent = "";
+      $("live-outcome").hidden = true;
+    }
   }
 
   async function refreshRuns() {
@@ -125,7 +129,7 @@
     add("Robot", optionsWords(r));
     add("Looking for", targetWords(r));
     add("Started", new Date((r.started_s || r.created_s) * 1000).toLocaleString());
-    if (r.outcome_detail) add("Details", r.outcome_detail);
+    // the outcome's technical account is in the summary's disclosure (imgnav.summary)
     const numbers = $("numbers");
     numbers.replaceChildren();
     const row = (k, v) => numbers.append(el("tr", {}, el("th", { text: k }), el("td", { text: v })));
@@ -179,13 +183,31 @@
     catch (e) { showError(e.message); }
   });
 
-  const peek = new imgnav.LivePeek((s) => {
-    if (!activeRun || s.run_id && s.run_id !== activeRun) return;
+  function showLive(s) {
     $("live-words").textContent = s.words;
     if (s.frame_url) $("live-frame").src = s.frame_url;
     $("live-map").src = s.map_url;
     $("candidates").replaceChildren(imgnav.candidatesTable(s.candidates, s.reid_tau));
+  }
+  let liveEnded = null;  // the run whose end the live card shows: late live answers are dropped
+  const peek = new imgnav.LivePeek((s, id) => {
+    if (!activeRun || id !== activeRun || id === liveEnded) return;
+    showLive(s);
   });
+
+  // The end of the run in the live card: its last recorded step and its outcome.
+  async function showLiveEnd(runId) {
+    liveEnded = runId;
+    const [r, last] = await Promise.all([
+      imgnav.getJSON(`/api/runs/${runId}`),
+      imgnav.getJSON(`/api/runs/${runId}/replay/latest`).catch(() => null),
+    ]);
+    if ($("live-id").textContent !== runId) return;
+    if (last) showLive(last);
+    $("live-state").textContent = ` (ended: ${r.summary ? r.summary.headline : r.status})`;
+    $("live-outcome").replaceChildren(imgnav.summary(r));
+    $("live-outcome").hidden = false;
+  }
 
   let refreshTimer = null;
   imgnav.follow("/api/events", (ev) => {
@@ -197,7 +219,10 @@
       return;
     }
     if (ev.kind === "status") {
-      log(`run ${ev.run_id}: ${ev.status}${ev.outcome ? ` - ${ev.outcome} (${ev.detail || ""})` : ""}`);
+      if (["finished", "stopped", "failed", "interrupted"].includes(ev.status) && $("live-id").textContent === ev.run_id) {
+        showLiveEnd(ev.run_id).catch((e) => log(`run ${ev.run_id}: ${e.message}`));
+      }
+      log(`run ${ev.run_id}: ${ev.status}${ev.detail ? ` (${ev.detail})` : ""}`);
       clearTimeout(refreshTimer);
       refreshTimer = setTimeout(async () => { await refreshRuns(); if (selected === ev.run_id) showRun(ev.run_id); }, 150);
     }

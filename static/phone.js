@@ -12,7 +12,6 @@
   let backendForm = null;
   let startedAt = null;
   let clock = null;
-  let lastPose = null;
 
   const showError = (msg) => { $("error").textContent = msg || ""; };
 
@@ -58,22 +57,46 @@
 
   const replay = new imgnav.Replay($("replay"));
 
-  const peek = new imgnav.LivePeek((s) => {
-    if (!runId) return;
-    $("run-mode").textContent = s.words.replace(/^Step \d+: /, "");
+  $("live-legend-box").replaceChildren(imgnav.legend("map", "live-legend"));
+
+  // One recorded step in the progress card: live (at most once a second), and once more at the
+  // end with the run's last step, so that nothing stale is left beside the outcome.
+  function showStep(s, final) {
+    // what it does (the match has its own line): "turning to look at a possible match, turn left"
+    const doing = [s.doing || imgnav.modeWords(s.mode), imgnav.actionWords(s.action_name)].filter(Boolean).join(", ");
+    $("run-mode").textContent = final ? `Step ${s.step + 1}: ${doing}` : doing;
     if (s.frame_url) { $("live-frame").src = s.frame_url; $("live-frame").hidden = false; }
     $("live-map").src = s.map_url; $("live-map").hidden = false;
+    $("live-legend-box").hidden = false;
     if (s.explored_m2 !== null && s.explored_m2 !== undefined) $("run-area").textContent = `${Math.round(s.explored_m2)} m²`;
-    if (s.target && lastPose) {
-      const d = Math.hypot(s.target[0] - lastPose[0], s.target[1] - lastPose[1]);
-      $("run-target").textContent = `${d.toFixed(1)} m`;
+    const best = imgnav.bestCandidate(s.candidates);
+    if (final) {
+      // at the end: the object as the robot placed it, and the best match it had of it
+      $("run-target-label").textContent = "to object";
+      $("run-target").textContent = best ? `${best.distance_m.toFixed(1)} m` : "-";
+      $("run-score-label").textContent = "Best match";
+      $("run-score").textContent = best ? `${imgnav.fmt(best.best_score, 1)} of ${imgnav.fmt(s.reid_tau, 1)} needed (#${best.id})`
+        : "no candidate";
+    } else {
+      $("run-target-label").textContent = "to target";
+      if (s.target && s.x_m !== undefined && s.x_m !== null) {
+        $("run-target").textContent = `${Math.hypot(s.target[0] - s.x_m, s.target[1] - s.y_m).toFixed(1)} m`;
+      }
+      $("run-score-label").textContent = "Match";
+      $("run-score").textContent = s.reid_score === null || s.reid_score === undefined ? "-" :
+        `${imgnav.fmt(s.reid_score, 1)} of ${imgnav.fmt(s.reid_tau, 1)} needed`;
     }
     const live = (s.candidates || []).filter((c) => c.state !== "rejected");
-    $("run-candidates").replaceChildren(live.length
+    const rejected = (s.candidates || []).filter((c) => c.state === "rejected");
+    let cands = live.length
       ? `${live.length} found: ` + live.map((c) => `#${c.id} ${c.state}, ${c.distance_m.toFixed(1)} m away`).join("; ")
-      : "none yet");
-    if (live.some((c) => c.state === "confirmed")) $("run-phase").textContent = "Candidate found: checking it";
-  });
+      : (final ? "none left" : "none yet");
+    if (final && rejected.length) cands += `; given up: ${rejected.map((c) => `#${c.id}${c.why ? ` (${c.why})` : ""}`).join(", ")}`;
+    $("run-candidates").replaceChildren(cands);
+    if (!final && live.some((c) => c.state === "confirmed")) $("run-phase").textContent = "Candidate found: checking it";
+  }
+
+  const peek = new imgnav.LivePeek((s, id) => { if (runId && id === runId) showStep(s, false); });
 
   function tick() {
     if (startedAt) $("run-time").textContent = imgnav.duration((Date.now() - startedAt) / 1000);
@@ -81,9 +104,17 @@
 
   async function finish(id) {
     clearInterval(clock);
-    const r = await imgnav.getJSON(`/api/runs/${id}`);
+    const [r, last] = await Promise.all([
+      imgnav.getJSON(`/api/runs/${id}`),
+      imgnav.getJSON(`/api/runs/${id}/replay/latest`).catch(() => null),
+    ]);
     $("run-outcome").replaceChildren(imgnav.summary(r));
-    $("run-phase").textContent = r.summary ? r.summary.headline : r.status;
+    $("run-outcome").hidden = false;
+    $("run-phase").hidden = true;  // the outcome above says how it ended
+    $("run-step").textContent = String(r.n_steps);
+    if (r.started_s && r.ended_s) $("run-time").textContent = imgnav.duration(r.ended_s - r.started_s);
+    if (last) showStep(last, true);
+    $("progress-card").scrollIntoView({ block: "start" });  // the outcome first
     $("replay-card").hidden = false;
     await replay.load(id);
   }
@@ -95,12 +126,8 @@
     if (ev.step !== undefined) {
       if (ev.step === 0) startedAt = startedAt || Date.now();
       $("run-step").textContent = String(ev.step + 1);
-      $("run-phase").textContent = `${imgnav.modeWords(ev.mode) || "moving"} (${imgnav.actionWords(ev.action_name)})`;
-      lastPose = [ev.x_m, ev.y_m, ev.yaw_rad];
-      if (ev.reid_score !== undefined) {
-        $("run-score").textContent = ev.reid_score === null ? "-" :
-          `${imgnav.fmt(ev.reid_score, 1)} of ${imgnav.fmt(ev.reid_tau, 1)} needed`;
-      }
+      const mode = imgnav.modeWords(ev.mode) || "moving";  // the step itself is on the "Doing" line
+      $("run-phase").textContent = mode.charAt(0).toUpperCase() + mode.slice(1);
       peek.offer(runId, ev.step);
     }
     if (["finished", "stopped", "failed", "interrupted"].includes(ev.status)) {
@@ -124,10 +151,15 @@
       const run = await imgnav.postForm("/api/runs", form);
       runId = run.id;
       $("run-id").textContent = run.id;
-      for (const id of ["run-step", "run-mode", "run-score", "run-outcome", "run-area", "run-target"]) $(id).textContent = "-";
+      for (const id of ["run-step", "run-mode", "run-score", "run-area", "run-target"]) $(id).textContent = "-";
+      $("run-outcome").replaceChildren();
+      $("run-outcome").hidden = true;
+      $("run-target-label").textContent = "to target";
+      $("run-score-label").textContent = "Match";
       $("run-candidates").textContent = "none yet";
       $("run-phase").textContent = "Preparing the robot and the agent...";
-      $("live-frame").hidden = $("live-map").hidden = true;
+      $("run-phase").hidden = false;
+      $("live-frame").hidden = $("live-map").hidden = $("live-legend-box").hidden = true;
       $("replay-card").hidden = true;
       $("progress-card").hidden = false;
       $("run-badge").replaceChildren(imgnav.badge(run.status));

@@ -1,7 +1,9 @@
 // Replay of a finished run (phone and console pages): a timeline slider over the steps, the
 // camera picture and the map as the agent knew it at each step, what it was doing and why,
 // the re-ID score against tau, the goal candidates; jumps to the first detection, each
-// rejected candidate and the stop. Optionally mirrors the step in the 3D viewer.
+// rejected candidate and the stop. Opens on the last step (how the run ended). Mirrors a step in
+// the shared 3D viewer only when this person moves the replay (opening a page changes nothing
+// others are watching).
 "use strict";
 
 imgnav.Replay = class {
@@ -24,8 +26,8 @@ imgnav.Replay = class {
     const n = data.steps.length;
     this.slider = el("input", { type: "range", id: "replay-slider", min: "1", max: String(n), value: "1", "aria-label": "step" });
     this.label = el("span", { id: "replay-step", class: "replay-step", text: `step 1 of ${n}` });
-    const prev = el("button", { type: "button", id: "replay-prev", text: "‹", title: "previous step" });
-    const next = el("button", { type: "button", id: "replay-next", text: "›", title: "next step" });
+    const prev = el("button", { type: "button", id: "replay-prev", text: "‹", title: "previous step", "aria-label": "previous step" });
+    const next = el("button", { type: "button", id: "replay-next", text: "›", title: "next step", "aria-label": "next step" });
     prev.addEventListener("click", () => this.go(this.current() - 1));
     next.addEventListener("click", () => this.go(this.current() + 1));
     this.slider.addEventListener("input", () => this.go(this.current(), true));
@@ -43,34 +45,39 @@ imgnav.Replay = class {
     this.frame = el("img", { id: "replay-frame", alt: "what the robot saw", class: "replay-frame" });
     this.map = el("img", { id: "replay-map", alt: "the map as the robot knew it", class: "replay-map" });
     this.words = el("p", { id: "replay-words", class: "replay-words" });
+    this.detail = el("p", { id: "replay-detail" });
     this.score = el("div", { class: "scorebar", id: "replay-score" });
     this.cands = el("div", { id: "replay-candidates" });
     this.root.replaceChildren(
       el("div", { class: "row replay-controls" }, prev, this.slider, next), this.label, jumps,
-      el("div", { class: "replay-pictures" }, this.frame, this.map), this.words, this.score,
+      el("div", { class: "replay-pictures" }, this.frame, this.map), imgnav.legend("map", "replay-legend"), this.words,
+      el("details", { class: "tech" }, el("summary", { text: "Technical details" }), this.detail), this.score,
       el("h3", { text: "Goal candidates" }), this.cands,
     );
-    await this.go(0);
+    await this.go(n - 1, false, false);  // the end of the run, without moving the shared 3D viewer
   }
 
   current() { return Number(this.slider.value) - 1; }
 
-  async go(step, fromSlider = false) {
+  // mirror: also show the step in the 3D viewer (options.onStep): only for this person's own moves
+  async go(step, fromSlider = false, mirror = true) {
     if (!this.data) return;
     const n = this.data.steps.length;
     step = Math.max(0, Math.min(n - 1, step));
     if (!fromSlider) this.slider.value = String(step + 1);
     this.label.textContent = `step ${step + 1} of ${n}`;
+    this.slider.setAttribute("aria-valuetext", this.label.textContent);
     const seq = ++this.seq;
     const s = await imgnav.getJSON(`/api/runs/${this.runId}/replay/${step}`);
     if (seq !== this.seq) return;  // the slider moved on meanwhile
     if (s.frame_url) this.frame.src = s.frame_url;
     this.map.src = s.map_url;
     this.words.textContent = s.words;
+    this.detail.textContent = s.detail || "no technical note at this step";
     this.renderScore(s.reid_score, s.reid_tau);
     this.cands.replaceChildren(imgnav.candidatesTable(s.candidates, s.reid_tau));
     this.root.dataset.step = String(step);
-    if (this.options.onStep) this.options.onStep(step);
+    if (mirror && this.options.onStep) this.options.onStep(step);
   }
 
   renderScore(score, tau) {

@@ -16,7 +16,7 @@ from console.deps import ConsoleDep, TokenDep, error
 from console.jsonio import json_safe
 from console.replay import map_picture, replay_marks
 from console.routes.runs import get_row
-from console.words import action_words, mode_words, step_detail, step_words
+from console.words import action_words, doing_words, mode_words, step_detail, step_words
 
 router = APIRouter(tags=["replay"])
 
@@ -84,6 +84,7 @@ def replay_step(run_id: str, console: ConsoleDep, step: int = StepParam) -> dict
         {
             **me,
             "words": step_words(me),
+            "doing": doing_words(me),
             "detail": step_detail(me),
             "mode_words": mode_words(me["mode"]),
             "candidates": ex.get("candidates", []),

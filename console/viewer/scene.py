@@ -5,7 +5,8 @@ Scene (the run's start-relative frame, z up, metres):
                    explored, visited, obstacles, frontiers, collisions, goal cells
   /map/obstacles   obstacle cells as a point cloud (a few heights, so walls read as walls)
   /goal/points     projected goal points (red)
-  /candidates      goal candidates (potential orange, confirmed green, rejected purple)
+  /candidates      goal candidates (potential orange, confirmed green, rejected purple: no map
+                   layer has these colours, console/pictures.py)
   /plan            planned path (yellow) and /target the frontier or goal target (magenta)
   /trajectory      the path driven so far (green)
   /robot           the robot body (cylinder) and /robot_camera a frustum textured with the live RGB
@@ -41,6 +42,7 @@ class LiveScene:
     def __init__(self, server: Any, config: ViewerConfig) -> None:
         self.server = server
         self.config = config
+        self.step_words = ""  # the words of the step drawn last ("" after ``clear``)
         self._build_scene()
         self._build_panels()
 
@@ -102,6 +104,7 @@ class LiveScene:
                 handle.remove()
         self.trajectory = self.plan = self.goal_points = self.target = None
         self.occupancy = self.obstacles = self.candidates = None
+        self.step_words = ""
 
     def publish(self, rec: StepRecord, with_map: bool, replay: bool = False) -> None:
         """Draw one step (pose, paths, target, candidates, panels; the map too if ``with_map``).
@@ -171,7 +174,8 @@ class LiveScene:
         self.frustum.visible = True
         # The step in the words the pages use (from the one step schema); numbered from 1 as there.
         step = STEP_SCHEMA.to_json(STEP_SCHEMA.from_step(rec))
-        self.status.content = f"**Run {rec.run_id}** - " + step_words(step)
+        self.step_words = step_words(step)
+        self.status.content = f"**Run {rec.run_id}** - {self.step_words}"
 
     def _publish_images(self, rec: StepRecord, replay: bool = False) -> None:
         h = self.config.image_height_px

@@ -28,6 +28,7 @@ from console.viewer.guard import HandshakeGuard
 from console.viewer.replay_gui import ReplayGui
 from console.viewer.scene import LiveScene
 from console.viewer.throttle import Throttle
+from console.words import run_summary
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +52,10 @@ class Viewer:
         self.guard = HandshakeGuard(allowed_hosts)
         self.guard.install(self.server)
         # The share button asks an outside service for a public tunnel: never offer it.
-        self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="large")
+        # The side panel beside the scene, not over it (a floating "large" panel hid ~45% of the scene
+        # at 1280 x 800, issue 33), narrow, and collapsible for the whole width.
+        self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="small")
+        self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("+z")
         # Look down on the start area from behind and above (a home is ~5-10 m across).
         self.server.initial_camera.position = (-4.0, -4.0, 7.0)
@@ -94,20 +98,25 @@ class Viewer:
     def offer(self, rec: StepRecord) -> None:
         self._throttle.offer(rec)
 
-    def run_ended(self, run_id: str, status: str, outcome: Outcome) -> None:
+    def run_ended(self, run_id: str, status: str, outcome: Outcome, summary: Mapping[str, str] | None = None) -> None:
+        """Draw the run's final step (whatever the throttle said) and say how it ended, in the
+        pages' words (``summary``: ``console.words.run_summary`` of the run), under its last step."""
         latest = self._throttle.take()
         if latest is not None and latest.run_id == run_id:
-            self.publish(latest, with_map=True)  # the final state, whatever the throttle said
-        metrics = ""
-        if outcome.metrics:
-            shown = {k: v for k, v in outcome.metrics.items() if isinstance(v, (int, float, bool))}
-            metrics = " - " + ", ".join(
-                f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()
+            self.publish(latest, with_map=True)
+        if summary is None:
+            summary = run_summary(
+                {
+                    "status": status,
+                    "outcome": outcome.outcome,
+                    "outcome_detail": outcome.detail,
+                    "metrics": outcome.metrics,
+                }
             )
         with self._handles_lock:
-            self.scene.status.content = (
-                f"**Run {run_id}** - {status}: **{outcome.outcome}** ({outcome.detail}){metrics}"
-            )
+            ended = f"**Run {run_id}** - {summary['headline']}. {summary['sentence']}"
+            last = self.scene.step_words  # this run's last step drawn (run_started cleared the scene)
+            self.scene.status.content = ended + (f"\n\nLast step: {last}" if last else "")
             self.controls.set_enabled(False)
 
     # --- drawing ----------------------------------------------------------------------
