@@ -12,16 +12,20 @@ The same loop that runs in simulation runs here::
   seeds the step counter from the robot's echo, sends the navigation posture and the
   head pose, waits until the camera tilt is there, and fixes the run's start pose.
 * ``apply()`` turns a discrete action into an absolute ``xyt`` goal composed from the
-  current base pose, sends it, waits for the echo (which comes after the motion) and
-  checks that the base got there. STOP sends nothing: moves block on the robot, so it is
-  already standing still, and the bridge has no stop action.
-* ``observe()`` returns an observation provably captured after the last acknowledged
-  action: one that arrived after the first observation echoing its step (the bridge
-  stamps the step at send time, after grabbing the images), within a bounded wait.
+  current base pose, sends it, waits for the echo, then waits for arrival as the robot
+  reports it (``robot/arrival.py``: ``at_goal``, or a failed motion; on the bridge, whose
+  moves block, the echo comes after the motion and arrival is already reported; a server
+  that echoes before the base arrives is waited out, with a warning) and checks that the
+  base got there. STOP sends nothing: the last move has arrived, so the base is already
+  standing still, and the bridge has no stop action.
+* ``observe()`` returns an observation provably captured after the last move's arrival:
+  one that arrived after the first observation echoing its step and reporting the motion
+  over (the bridge stamps the step and ``at_goal`` at send time, after grabbing the
+  images), within a bounded wait.
 
 Every failure is a ``BackendError`` with a reason code: ``disconnected`` (no state for
 more than ``state_silence_s``), ``runstopped``, ``not_homed``, ``ack_timeout``,
-``move_failed``, ``head_failed``, ``no_observation``, ``bad_observation``, ``protocol``,
+``no_arrival``, ``move_failed``, ``head_failed``, ``no_observation``, ``bad_observation``, ``protocol``,
 ``closed``, ``cancelled`` (``cancel()`` from another thread: the run was stopped). Runstop, homing and silence are checked before sending and throughout every
 wait, so a runstop pressed mid-move ends the run at once.
 """
@@ -39,6 +43,7 @@ import numpy as np
 
 from agent.types import Action, BackendError, Observation, Pose2D
 from robot import encoding
+from robot.arrival import ArrivalLimits, ArrivalVerdict, ArrivalWatch
 from robot.config import StretchConfig
 from robot.link import BridgeLink
 from robot.protocol import (
@@ -59,6 +64,11 @@ _CAMERA_OFFSET_WARN_M = 0.05  # a map error the agent's 5 cm cells would show
 _CAMERA_PAN_WARN_RAD = math.radians(3.0)
 
 
+def _rounded(value: float, ndigits: int) -> float:
+    """``value`` rounded for printing, never a negative zero ("-0.0" reads as a sign error)."""
+    return round(value, ndigits) + 0.0
+
+
 @dataclass(frozen=True, slots=True)
 class MoveReport:
     """What happened to one base goal.
@@ -66,6 +76,12 @@ class MoveReport:
     ack_wait_s: from the first send to the echo (includes the motion on the robot).
     total_s: the whole ``apply`` call. blocked: the robot reported a failed motion
     (``last_motion_failed``; the fake robot's collision) and stopped short of the goal.
+    arrival_wait_s: from the echo to the arrival the robot reported (about 0 on the bridge,
+    whose moves block; the motion itself on a server that echoes at once).
+    acked_before_arrival: a message echoing the step said ``at_goal`` false before the
+    robot reported arrival: this server acknowledges moves before the base arrives.
+    observations_before_arrival: observations echoing the step with ``at_goal`` false
+    (each one would have been a stale observation for a client that trusted the echo).
     """
 
     step: int
@@ -77,6 +93,9 @@ class MoveReport:
     total_s: float
     resends: int
     blocked: bool
+    arrival_wait_s: float
+    acked_before_arrival: bool
+    observations_before_arrival: int
 
 
 class StretchBackend:
@@ -104,6 +123,10 @@ class StretchBackend:
         self._start_world: Pose2D | None = None
         self._next_step = 0
         self._required_step: int | None = None  # observations must echo at least this
+        # (step, seq): the last move's arrival; observations must come after observation seq
+        # (None: after the first observation that echoed the step and reported arrival)
+        self._arrival_mark: tuple[int, int | None] | None = None
+        self._warned_early_acks = False
         self._actions_applied = 0
         self.moves: list[MoveReport] = []
         self.camera_offset: Pose2D | None = None  # head camera in the base frame, measured at reset
@@ -143,6 +166,7 @@ class StretchBackend:
                 lambda s: head_message(cfg.head_pan_rad, -cfg.head_tilt_rad, s), cfg.ack_timeout_s, "head pose"
             )
             self._wait_for_head(step)
+        self._arrival_mark = None
         raw = self._fresh_observation()
         self._start_world = raw.base_world
         self._actions_applied = 0
@@ -172,12 +196,33 @@ class StretchBackend:
             lambda s: move_message(goal, s), self.config.ack_timeout_s, f"{action.name}", resends
         )
         ack_wait_s = time.monotonic() - sent_at
-        end, blocked = self._check_arrival(goal, step)
+        watch, verdict = self._wait_for_arrival(goal, step, action.name)
+        assert verdict.pose is not None  # every verdict but no_arrival has a pose
+        end, blocked = verdict.pose, verdict.kind == "blocked"
         self._actions_applied += 1
-        report = MoveReport(step, action, start, goal, end, ack_wait_s, time.monotonic() - t0, resends[0], blocked)
+        report = MoveReport(
+            step,
+            action,
+            start,
+            goal,
+            end,
+            ack_wait_s,
+            time.monotonic() - t0,
+            resends[0],
+            blocked,
+            arrival_wait_s=verdict.after_s,
+            acked_before_arrival=watch.reported_not_arrived and not blocked,
+            observations_before_arrival=watch.observations_before_arrival,
+        )
         self.moves.append(report)
         log.debug(
-            "step %d %s: ack after %.2f s, end error %.3f m", step, action.name, ack_wait_s, end.distance_to(goal)
+            "step %d %s: ack after %.2f s, arrival %.2f s later (%s), end error %.3f m",
+            step,
+            action.name,
+            ack_wait_s,
+            verdict.after_s,
+            verdict.how,
+            end.distance_to(goal),
         )
 
     def cancel(self, why: str = "the run was stopped") -> None:
@@ -310,44 +355,83 @@ class StretchBackend:
             resends_out.append(resends[0])
         return step
 
-    def _check_arrival(self, goal: Pose2D, step: int) -> tuple[Pose2D, bool]:
-        """After the echo: the base must be at the goal, or the robot must say the motion failed."""
+    def _wait_for_arrival(self, goal: Pose2D, step: int, what: str) -> tuple[ArrivalWatch, ArrivalVerdict]:
+        """After the echo: wait until the robot reports the base arrived at the goal, or says
+        the motion failed (``robot/arrival.py``); ``no_arrival`` or ``move_failed`` otherwise."""
         link = self._require_link()
         cfg = self.config
-        acked_at = time.monotonic()
-        outcome: list[tuple[Pose2D, bool]] = []
+        limits = ArrivalLimits(
+            arrival_timeout_s=cfg.arrival_timeout_s,
+            settle_timeout_s=cfg.settle_timeout_s,
+            goal_tolerance_m=cfg.goal_tolerance_m,
+            goal_tolerance_rad=cfg.goal_tolerance_rad,
+            still_window_s=cfg.still_window_s,
+            still_tolerance_m=cfg.still_tolerance_m,
+            still_tolerance_rad=cfg.still_tolerance_rad,
+        )
+        watch = ArrivalWatch(step, goal, time.monotonic(), limits)
+        outcome: list[ArrivalVerdict] = []
 
-        def finished() -> bool:
-            state, obs = link.state, link.observation
-            if state is None or state.received_s < acked_at:
-                return False  # wait for a pose reported after the echo
-            err_m, err_rad = pose_error(state.base_world, goal)
-            if err_m <= cfg.goal_tolerance_m and err_rad <= cfg.goal_tolerance_rad:
-                outcome[:] = [(state.base_world, False)]
-                return True
-            if obs is not None and obs.step is not None and obs.step >= step and obs.last_motion_failed:
-                # where it stopped: the state's pose (read after the echo); the observation's
-                # pose was read before its step was stamped and may predate the motion's end
-                outcome[:] = [(state.base_world, True)]
-                return True
-            return False
+        def judged() -> bool:
+            verdict = watch.update(link.state, link.observation, time.monotonic())
+            if verdict is not None:
+                outcome[:] = [verdict]
+            return verdict is not None
 
-        def failure() -> str:
-            state = link.state
-            if state is None:
-                return f"no base pose after step {step}"
-            err_m, err_rad = pose_error(state.base_world, goal)
-            return (
-                f"the robot acknowledged step {step} but its base stopped {err_m:.2f} m and "
-                f"{math.degrees(err_rad):.0f} deg from the goal (tolerance {cfg.goal_tolerance_m:.2f} m, "
-                f"{math.degrees(cfg.goal_tolerance_rad):.0f} deg) without reporting a failed motion"
+        # The watch ends every wait within its own bounds; the outer bound is a backstop.
+        backstop_s = cfg.arrival_timeout_s + cfg.settle_timeout_s + 1.0
+        self._wait_until(
+            judged,
+            backstop_s,
+            "no_arrival",
+            lambda: f"step {step} {what}: no verdict on arrival within {backstop_s:.0f} s",
+        )
+        verdict = outcome[0]
+        if verdict.kind == "no_arrival":
+            text = (
+                f"the robot acknowledged step {step} ({what}) but did not report that its base arrived "
+                f"within {cfg.arrival_timeout_s:.1f} s of the acknowledgement (StretchConfig.arrival_timeout_s): "
+                f"{watch.describe()}"
             )
-
-        self._wait_until(finished, cfg.settle_timeout_s, "move_failed", failure)
-        end, blocked = outcome[0]
-        if blocked:
-            log.info("step %d: the robot reports a failed motion (blocked) %.2f m short", step, end.distance_to(goal))
-        return end, blocked
+            log.error("%s", text)
+            raise BackendError("no_arrival", text)
+        if verdict.kind == "off_goal":
+            assert verdict.pose is not None
+            err_m, err_rad = pose_error(verdict.pose, goal)
+            said = "reported arrival" if verdict.how == "at_goal" else "stopped its base"
+            raise BackendError(
+                "move_failed",
+                f"the robot {said} after step {step} but its base stopped {err_m:.2f} m and "
+                f"{math.degrees(err_rad):.0f} deg from the goal (tolerance {cfg.goal_tolerance_m:.2f} m, "
+                f"{math.degrees(cfg.goal_tolerance_rad):.0f} deg) without reporting a failed motion",
+            )
+        if verdict.kind == "blocked":
+            assert verdict.pose is not None
+            log.info(
+                "step %d: the robot reports a failed motion (blocked) %.2f m short",
+                step,
+                verdict.pose.distance_to(goal),
+            )
+        if watch.reported_not_arrived and verdict.kind == "arrived" and not self._warned_early_acks:
+            self._warned_early_acks = True
+            log.warning(
+                "the robot acknowledged step %d (%s) %.1f s before its base arrived (at_goal false at the echo): "
+                "its navigation does not block, so every move waits for at_goal (bounded by %.0f s) and "
+                "observations are taken after it",
+                step,
+                what,
+                verdict.after_s,
+                cfg.arrival_timeout_s,
+            )
+        # Observations must be captured after the arrival: after the first observation that
+        # echoed the step and reported it (its flags are read at send time, like its step); a
+        # robot whose observations carry no at_goal: after one received after this point.
+        obs = link.observation
+        if obs is not None and obs.at_goal is None and link.first_observation_arrived(step) is None:
+            self._arrival_mark = (step, obs.seq + 1)
+        else:
+            self._arrival_mark = (step, None)
+        return watch, verdict
 
     def _wait_for_head(self, step: int) -> None:
         link = self._require_link()
@@ -380,23 +464,44 @@ class StretchBackend:
 
         def failure() -> str:
             tilt = tilt_of(link.observation)
-            seen = "no observation after the head command" if tilt is None else f"{math.degrees(tilt):.1f} deg"
-            return f"the camera tilt did not reach {math.degrees(wanted):.1f} deg (down) within {cfg.head_timeout_s:.0f} s: {seen}"
+            seen = (
+                "no observation after the head command"
+                if tilt is None
+                else f"{_rounded(math.degrees(tilt), 1):.1f} deg"
+            )
+            return (
+                f"the camera tilt did not reach {_rounded(math.degrees(wanted), 1):.1f} deg (down) "
+                f"within {cfg.head_timeout_s:.0f} s: {seen}"
+            )
 
         self._wait_until(there, cfg.head_timeout_s, "head_failed", failure)
 
     def _fresh_observation(self) -> RawObservation:
-        """The latest observation provably captured after the last acknowledged step.
+        """The latest observation provably captured after the last acknowledged step and,
+        after a move, after the arrival the robot reported.
 
-        The bridge stamps an observation with the last handled step only when it sends it,
-        after grabbing its images and reading its pose (docs/architecture.md section 6): the observation
-        that echoes step N can hold images from before N's motion ended. Its publishing loop
-        is sequential, so an observation received after that one was grabbed after it was
-        sent, hence after N's acknowledgement (``StretchConfig.observations_after_echo``)."""
+        The bridge stamps an observation with the last handled step (and ``at_goal``) only
+        when it sends it, after grabbing its images and reading its pose (docs/architecture.md
+        section 6): the observation that echoes step N can hold images from before N's motion
+        ended. Its publishing loop is sequential, so an observation received after that one
+        was grabbed after it was sent, hence after N's acknowledgement
+        (``StretchConfig.observations_after_echo``). A server that acknowledges before the
+        base arrives sends observations echoing N while still moving; then the count starts
+        at the first observation echoing N that also reports the motion over."""
         link = self._require_link()
         required = self._required_step
         n_after = self.config.observations_after_echo
+        arrival = self._arrival_mark if self._arrival_mark is not None and self._arrival_mark[0] == required else None
         chosen: list[RawObservation] = []
+
+        def first_counted() -> int | None:
+            """The observation the count starts from (None while there is none)."""
+            assert required is not None
+            first = link.first_observation_echoing(required)
+            if first is None or arrival is None:
+                return first
+            after = link.first_observation_arrived(required) if arrival[1] is None else arrival[1]
+            return None if after is None else max(first, after)
 
         def fresh() -> bool:
             obs = link.observation
@@ -405,7 +510,7 @@ class StretchBackend:
             if required is not None:
                 if obs.step is None or obs.step < required:
                     return False
-                first = link.first_observation_echoing(required)
+                first = first_counted()
                 if first is None or obs.seq - first < n_after:
                     return False
             chosen[:] = [obs]
@@ -419,10 +524,13 @@ class StretchBackend:
                     "no observation at all" if latest is None else f"the latest observation echoes step {latest.step}"
                 )
                 why = f"no observation has echoed it ({seen})"
+            elif first_counted() is None:
+                why = "no observation echoing it has reported the base arrived (at_goal), though the robot did"
             else:
+                first = first_counted() or first
                 n_since = (latest.seq - first) if latest is not None else 0
                 why = (
-                    f"{n_since} observation(s) arrived after the first one that echoed it, "
+                    f"{n_since} observation(s) arrived after the first one that echoed it (and its arrival), "
                     f"{n_after} needed (the robot's observation stream stalled?)"
                 )
             return (
@@ -442,9 +550,9 @@ class StretchBackend:
         local = Pose2D(float(T[0, 3]), float(T[1, 3]), encoding.camera_yaw_rad(T)).relative_to(raw.base_world)
         self.camera_offset = local
         text = (
-            f"head camera {local.x_m:+.3f} m ahead, {local.y_m:+.3f} m left of the base origin, "
-            f"pan {math.degrees(local.yaw_rad):+.1f} deg, height {T[2, 3]:.2f} m, "
-            f"tilt {math.degrees(encoding.camera_tilt_rad(T)):.1f} deg down"
+            f"head camera {_rounded(local.x_m, 3):+.3f} m ahead, {_rounded(local.y_m, 3):+.3f} m left of the base "
+            f"origin, pan {_rounded(math.degrees(local.yaw_rad), 1):+.1f} deg, height {_rounded(T[2, 3], 2):.2f} m, "
+            f"tilt {_rounded(math.degrees(encoding.camera_tilt_rad(T)), 1):.1f} deg down"
         )
         if math.hypot(local.x_m, local.y_m) > _CAMERA_OFFSET_WARN_M or abs(local.yaw_rad) > _CAMERA_PAN_WARN_RAD:
             log.warning("%s: the agent assumes the camera above the base origin looking ahead", text)

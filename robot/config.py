@@ -23,13 +23,23 @@ class StretchConfig:
     ack_timeout_s: wait this long for the echo of a base goal. On the robot the echo comes
         only after the base has arrived, so this must cover the whole motion (a 0.25 m
         move or a 30 deg turn takes a few seconds on a Stretch; the margin is for slow
-        floors and the goto controller's settling).
-    posture_timeout_s: same for the navigation posture (lift and arm move first).
+        floors and the goto controller's settling). Also the bound for the head pose's echo.
+    posture_timeout_s: same for the navigation posture at the start of a run (lift and arm
+        move first, and the bridge blocks until they have).
+    arrival_timeout_s: after the echo of a base goal, wait this long for the robot to report
+        that the base has arrived (``at_goal``, or a failed motion; ``robot/arrival.py``). The
+        bridge echoes only after arrival, so there this wait ends at once; a server whose
+        navigation does not block (stretch_ai's MuJoCo server) echoes at once and the whole
+        motion happens in this wait, so it must cover the motion like ``ack_timeout_s``.
+        Past it the run ends with ``no_arrival``.
+    still_window_s / still_tolerance_m / still_tolerance_rad: for a robot whose messages carry
+        no ``at_goal``: the base has arrived when the state stream's base pose has stayed
+        within these tolerances for this long, at the goal.
     resend_interval_s: re-send an unacknowledged action this often. Safe because goals are
         absolute and the bridge drops steps it has already handled; it covers a first
         message lost while the PUB/SUB connection is still being set up.
-    settle_timeout_s: after the echo, wait this long for the reported base pose to reach
-        the goal before calling the move failed.
+    settle_timeout_s: once the robot reports arrival (or its base stands still), wait this
+        long for the reported base pose to reach the goal before calling the move failed.
     goal_tolerance_m / goal_tolerance_rad: a move has finished when the base is this close
         to its goal.
     observation_timeout_s: wait this long for an observation captured after the last move.
@@ -58,6 +68,10 @@ class StretchConfig:
     connect_timeout_s: float = 10.0
     ack_timeout_s: float = 30.0
     posture_timeout_s: float = 60.0
+    arrival_timeout_s: float = 30.0
+    still_window_s: float = 0.3
+    still_tolerance_m: float = 0.005
+    still_tolerance_rad: float = 0.01
     resend_interval_s: float = 1.0
     settle_timeout_s: float = 2.0
     goal_tolerance_m: float = 0.10
@@ -83,6 +97,10 @@ class StretchConfig:
             "connect_timeout_s",
             "ack_timeout_s",
             "posture_timeout_s",
+            "arrival_timeout_s",
+            "still_window_s",
+            "still_tolerance_m",
+            "still_tolerance_rad",
             "resend_interval_s",
             "settle_timeout_s",
             "observation_timeout_s",

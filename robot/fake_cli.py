@@ -55,6 +55,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="build each observation at one instant instead of in the bridge's order (images, pose, "
         "compression, then the step at send time, so an observation echoing a step can predate its motion's end)",
     )
+    faults.add_argument(
+        "--nonblocking-nav",
+        action="store_true",
+        help="acknowledge a goal at once and move afterwards, at_goal false until the base arrives "
+        "(as stretch_ai's MuJoCo server)",
+    )
+    faults.add_argument(
+        "--never-arrive",
+        action="store_true",
+        help="with --nonblocking-nav: every motion stalls halfway and at_goal never turns true",
+    )
 
 
 def build_world(args: argparse.Namespace):
@@ -73,8 +84,15 @@ def build_world(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.never_arrive and not args.nonblocking_nav:
+        raise SystemExit("--never-arrive needs --nonblocking-nav (a blocking robot would never acknowledge)")
     knobs = FakeKnobs(
-        runstopped=args.runstopped, homed=not args.not_homed, drop_acks=args.drop_acks, faithful=not args.idealised
+        runstopped=args.runstopped,
+        homed=not args.not_homed,
+        drop_acks=args.drop_acks,
+        faithful=not args.idealised,
+        nonblocking_nav=args.nonblocking_nav,
+        never_arrive=args.never_arrive,
     )
     if args.slow:
         knobs.linear_speed_m_s, knobs.angular_speed_rad_s = 0.2, 0.6

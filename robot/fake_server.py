@@ -15,7 +15,17 @@ swapped meanings) and state dicts (~30 Hz), and handles actions the way the brid
 * ``posture`` blocks while the arm tucks and points the head down; ``head_to`` is not
   blocking: echoed at once, the head then moves;
 * a runstop freezes motion (the move resumes when released, like the real goto
-  controller, and the echo waits for it).
+  controller, and the echo waits for it);
+* ``at_goal`` (in state and observation messages) turns false when a goal is accepted and
+  true when the base has arrived; it stays false after a motion that failed.
+
+Non-blocking navigation (``FakeKnobs.nonblocking_nav``), as stretch_ai's MuJoCo server
+(``src/stretch/simulation/mujoco_server.py``) does: an ``xyt`` goal is handed to a motion
+thread and the step is echoed at once, with ``at_goal`` false; the base then moves and
+``at_goal`` turns true only when it has arrived. A client that trusts the echo takes
+observations from mid-motion. ``never_arrive`` makes such a motion stall halfway with
+``at_goal`` false for good (a goto controller that never finishes); ``reports_at_goal``
+False leaves ``at_goal`` out of every message (a server that does not report it).
 
 Observations are built in the bridge's order (``FakeKnobs.faithful``, on by default):
 the camera images are grabbed (rendered) first, then the base pose and camera pose are
@@ -28,7 +38,8 @@ observation rate, like the bridge's publisher (its compression sets its pace).
 
 Knobs for tests (``FakeKnobs``, changeable while running): runstop, not homed, dropped
 acknowledgements, silence (publish nothing), slow moves (speeds), whether state
-messages carry ``step``, faithful observation order.
+messages carry ``step``, faithful observation order, non-blocking navigation, a motion
+that never arrives, whether messages carry ``at_goal``.
 """
 
 from __future__ import annotations
@@ -75,6 +86,12 @@ class FakeKnobs:
     # The bridge's observation order (images, then pose, then compression, then the step
     # stamped at send time, motion continuing throughout); False: all fields at one instant.
     faithful: bool = True
+    # Echo an xyt goal at once and move afterwards, at_goal false until the base arrives
+    # (stretch_ai's MuJoCo server); False: block the receive loop until arrival (the bridge).
+    nonblocking_nav: bool = False
+    # With nonblocking_nav: the base stalls halfway and at_goal never turns true.
+    never_arrive: bool = False
+    reports_at_goal: bool = True  # False: no 'at_goal' key in state or observation messages
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,6 +141,8 @@ class FakeStretch:
         self.actions: list[dict[str, Any]] = []  # every handled action, for tests
         self.refused_messages = 0
         self.receiver_alive = False
+        self._motion_gen = 0  # bumped by every new goal; a superseded motion thread stops
+        self._motion_threads: list[threading.Thread] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._ctx: zmq.Context | None = None
@@ -162,7 +181,7 @@ class FakeStretch:
             return
         self._stop.set()
         alive = []
-        for thread in self._threads:
+        for thread in self._threads + self._motion_threads:
             thread.join(timeout=5.0)
             if thread.is_alive():
                 alive.append(thread.name)
@@ -247,6 +266,8 @@ class FakeStretch:
                 }
                 if self.knobs.state_has_step:
                     msg["step"] = snap.echo_step
+                if not self.knobs.reports_at_goal:
+                    del msg["at_goal"]
                 sock.send_pyobj(msg, protocol=4)
         finally:
             sock.close(linger=0)
@@ -287,7 +308,7 @@ class FakeStretch:
     ) -> dict[str, Any]:
         """``read``: poses read after the images were grabbed; ``stamp``: what the bridge reads
         when it builds the dict (step, motion flags, control mode)."""
-        return {
+        msg: dict[str, Any] = {
             "rgb": rgb_enc,
             "depth": depth_enc,
             "camera_K": self.world.intrinsics.K.astype(np.float32),
@@ -307,6 +328,9 @@ class FakeStretch:
             "step": stamp.echo_step,
             "at_goal": stamp.at_goal,
         }
+        if not self.knobs.reports_at_goal:
+            del msg["at_goal"]
+        return msg
 
     def _render_raw(self, pose: Pose2D, tilt_rad: float) -> tuple:
         """Grab the camera images at ``pose`` (rendered once per distinct pose); returns the cache key."""
@@ -394,7 +418,23 @@ class FakeStretch:
             if mode != "navigation":
                 log.warning("fake Stretch: xyt goal ignored in %s mode", mode)
                 return
-            self._move_to(Pose2D(goal.x_m, goal.y_m, wrap_angle(goal.yaw_rad)))
+            goal = Pose2D(goal.x_m, goal.y_m, wrap_angle(goal.yaw_rad))
+            with self._lock:
+                # a new goal supersedes a motion still running (as a goto controller's goal)
+                self._motion_gen += 1
+                gen = self._motion_gen
+                self._at_goal = False
+                self._last_motion_failed = False
+            if not self.knobs.nonblocking_nav:
+                self._move_to(goal, gen)
+                return
+            # acknowledged as soon as this returns; the base moves on its own thread
+            stall = 0.5 if self.knobs.never_arrive else None
+            thread = threading.Thread(
+                target=self._move_to, args=(goal, gen, stall), name=f"fake-stretch-move-{gen}", daemon=True
+            )
+            self._motion_threads = [t for t in self._motion_threads if t.is_alive()] + [thread]
+            thread.start()
         elif "head_to" in action:
             pan, tilt = (float(v) for v in action["head_to"])
             if abs(pan) > 1e-3:
@@ -417,11 +457,10 @@ class FakeStretch:
             last = now
         return True
 
-    def _move_to(self, goal: Pose2D) -> None:
+    def _move_to(self, goal: Pose2D, gen: int, stall_at: float | None = None) -> None:
+        """Drive to ``goal`` (motion ``gen``); with ``stall_at`` stop at that fraction of the
+        way and never report arrival."""
         start = self.pose_world
-        with self._lock:
-            self._at_goal = False
-            self._last_motion_failed = False
         dist = start.distance_to(goal)
         dyaw = wrap_angle(goal.yaw_rad - start.yaw_rad)
         n = max(1, int(math.ceil(dist / _COLLISION_STEP_M)))
@@ -433,6 +472,8 @@ class FakeStretch:
                     reach = (i - 1) / n
                     break
         blocked = reach < 1.0
+        if stall_at is not None:
+            reach, blocked = min(reach, stall_at), False
 
         def at(f: float) -> Pose2D:
             return Pose2D(
@@ -452,9 +493,20 @@ class FakeStretch:
                 elapsed += now - last
             last = now
             with self._lock:
+                if gen != self._motion_gen:
+                    return  # superseded by a newer goal
                 self._pose = at(reach * min(1.0, elapsed / duration) if duration > 0 else reach)
         with self._lock:
+            if gen != self._motion_gen:
+                return
             self._pose = at(reach)
+            if stall_at is not None:
+                log.info(
+                    "fake Stretch: motion %d stalled %.2f m from its goal (never_arrive)",
+                    gen,
+                    self._pose.distance_to(goal),
+                )
+                return  # at_goal stays false
             self._at_goal = not blocked
             self._last_motion_failed = blocked
         if blocked:

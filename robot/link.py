@@ -78,6 +78,9 @@ class BridgeLink:
         # (step, seq): the first observation (by seq) whose echo reached that step; appended
         # whenever the observations' echoed step rises, so it is sorted by both.
         self._obs_echo_marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=256)
+        # (step, seq): the same for the first observation that echoed the step and reported
+        # the base's motion over (at_goal, or last_motion_failed); both are read at send time.
+        self._obs_arrival_marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=256)
         self._counts = {"state": 0, "obs": 0, "refused": 0, "malformed": 0}
         self._last_problem: str | None = None
         self._stop = threading.Event()
@@ -154,6 +157,13 @@ class BridgeLink:
                 marks = self._obs_echo_marks
                 if parsed.step is not None and (not marks or parsed.step > marks[-1][0]):
                     marks.append((parsed.step, parsed.seq))
+                arrived = self._obs_arrival_marks
+                if (
+                    parsed.step is not None
+                    and (parsed.at_goal or parsed.last_motion_failed)
+                    and (not arrived or parsed.step > arrived[-1][0])
+                ):
+                    arrived.append((parsed.step, parsed.seq))
             if parsed.step is not None:
                 self._max_step = max(self._max_step, parsed.step)
             self._counts[kind] += 1
@@ -190,8 +200,18 @@ class BridgeLink:
         """``seq`` of the first observation received that echoed ``step`` or a later one;
         None while none has. (When old marks have been dropped this may name a later
         observation than the first: never an earlier one.)"""
+        return self._first_mark(self._obs_echo_marks, step)
+
+    def first_observation_arrived(self, step: int) -> int | None:
+        """``seq`` of the first observation received that echoed ``step`` or a later one and
+        reported the base's motion over (``at_goal`` or ``last_motion_failed``); None while none
+        has. The flags are read when the message is sent, like the step, so the observation
+        after this one was grabbed after the robot said so."""
+        return self._first_mark(self._obs_arrival_marks, step)
+
+    def _first_mark(self, marks: collections.deque[tuple[int, int]], step: int) -> int | None:
         with self._cond:
-            for echoed, seq in self._obs_echo_marks:
+            for echoed, seq in marks:
                 if echoed >= step:
                     return seq
             return None
