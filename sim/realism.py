@@ -348,10 +348,9 @@ def noisy_depth(
     white = rng.standard_normal((h, w), dtype=np.float32) * sd_native * math.sqrt(1.0 - m.correlated_share)
     cell = max(1, m.correlated_cell_px)
     coarse = rng.standard_normal((h // cell + 2, w // cell + 2), dtype=np.float32)
-    smooth = cv2.resize(coarse, (w + 2 * cell, h + 2 * cell), interpolation=cv2.INTER_LINEAR)[
-        cell : cell + h, cell : cell + w
-    ]
-    smooth /= max(float(smooth.std()), 1e-6)  # interpolation lowers the variance: back to unit
+    up = np.asarray(cv2.resize(coarse, (w + 2 * cell, h + 2 * cell), interpolation=cv2.INTER_LINEAR), np.float32)
+    smooth = up[cell : cell + h, cell : cell + w]
+    smooth = smooth / max(float(smooth.std()), 1e-6)  # interpolation lowers the variance: back to unit
     err_disp = white + smooth * sd_native * math.sqrt(m.correlated_share)
     fb = m.native_focal_px * m.baseline_m
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -396,7 +395,10 @@ def jpeg(rgb: np.ndarray, quality: int) -> np.ndarray:
     ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise RuntimeError("JPEG encoding failed")
-    return cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    decoded = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    if decoded is None:
+        raise RuntimeError("JPEG decoding failed")
+    return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
 
 
 def phone_photo(image: np.ndarray, m: GoalPhotoModel, rng: np.random.Generator) -> np.ndarray:
