@@ -8,7 +8,17 @@ from fastapi import APIRouter, File, Form, Path, Request, UploadFile
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from console.calibration import DEPLOYMENTS, CalibrationInputError, LabelledPhoto, tau_in_force
+from console.calibration import (
+    DEPLOYMENTS,
+    MAX_PHOTOS,
+    MIN_DIFFERENT_PAIRS,
+    MIN_OBJECTS,
+    MIN_SAME_PAIRS,
+    MIN_VIEWS_PER_OBJECT,
+    CalibrationInputError,
+    LabelledPhoto,
+    tau_in_force,
+)
 from console.context import Console
 from console.deps import ConsoleDep, TokenDep, check_token, error
 from console.jsonio import json_safe
@@ -27,9 +37,19 @@ def _job(console: Console, job_id: str) -> Any:
     return job
 
 
-@router.get("", summary="Each deployment's tau in force and where it comes from")
+LIMITS = {
+    "min_objects": MIN_OBJECTS,
+    "min_views_per_object": MIN_VIEWS_PER_OBJECT,
+    "min_same_pairs": MIN_SAME_PAIRS,
+    "min_different_pairs": MIN_DIFFERENT_PAIRS,
+    "max_photos": MAX_PHOTOS,
+}
+
+
+@router.get("", summary="Each deployment's tau in force and where it comes from, and the photo set's limits")
 def calibration_status(console: ConsoleDep) -> dict[str, Any]:
-    return json_safe({d: tau_in_force(console.data_dir, d) for d in DEPLOYMENTS} | {"busy": console.calibrator.busy})
+    status = {d: tau_in_force(console.data_dir, d) for d in DEPLOYMENTS}
+    return json_safe(status | {"busy": console.calibrator.busy, "limits": LIMITS})
 
 
 @router.post(
