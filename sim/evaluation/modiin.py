@@ -187,6 +187,28 @@ def goal_image_mask(oracle: Any, episode: Any) -> np.ndarray:
 # --- failure attribution ------------------------------------------------------------------
 
 
+GHOST_CLEARANCE_M = 0.15
+
+
+def _open_floor(grid: Any) -> np.ndarray:
+    """(H, W) bool: cells of a true navigable grid at least ``GHOST_CLEARANCE_M`` inside the
+    region the robot's centre can reach (so well clear of every real obstacle), cached per grid."""
+    cached = _OPEN_FLOOR.get(id(grid))
+    if cached is not None and cached[0] is grid:
+        return cached[1]
+    import cv2
+
+    nav = np.asarray(grid.navigable, np.uint8)
+    dist = cv2.distanceTransform(nav, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * grid.resolution_m
+    clear = dist >= GHOST_CLEARANCE_M
+    _OPEN_FLOOR.clear()
+    _OPEN_FLOOR[id(grid)] = (grid, clear)
+    return clear
+
+
+_OPEN_FLOOR: dict[int, tuple[Any, np.ndarray]] = {}
+
+
 class Attribution:
     """Per-episode observer: collects per-step ground truth beside the agent's records and
     attributes a failure to one class (checked in this order):
@@ -238,9 +260,13 @@ class Attribution:
         self.full_matcher_steps = 0  # steps on which the full matcher ran
         self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
         self.second_look_step: int | None = None  # the step that took the second look when exhausted
+        self.pose_error_m: list[float] = []  # believed against true position, per step (realism's pose noise)
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
+        believed = self.oracle.start_pose_world.compose(obs.pose)
+        true = self.oracle.pose_world
+        self.pose_error_m.append(math.hypot(believed.x_m - true.x_m, believed.y_m - true.y_m))
         px = int(self.oracle.goal_mask().sum())
         seen = px >= self.seen_px
         if seen:
@@ -314,6 +340,23 @@ class Attribution:
             out.append(row)
         return out
 
+    def ghost_cells(self) -> int | None:
+        """Obstacle cells of the agent's final map that lie in truly open floor (at least
+        ``GHOST_CLEARANCE_M`` beyond where the robot's centre can go): phantom obstacles from
+        depth noise or a drifting pose (None: no map)."""
+        snap = self.last.map if self.last is not None else None
+        if snap is None or not snap.obstacle.any():
+            return None if snap is None else 0
+        ij = np.argwhere(snap.obstacle)
+        xy_run = (ij[:, ::-1] + 0.5) * snap.resolution_m + np.asarray(snap.origin_xy_m)
+        xy = self.oracle.start_pose_world.transform_xy(xy_run)
+        grid = self.oracle.navigable
+        clear = _open_floor(grid)
+        gi = np.floor((xy[:, 1] - grid.origin_xy_m[1]) / grid.resolution_m).astype(np.int64)
+        gj = np.floor((xy[:, 0] - grid.origin_xy_m[0]) / grid.resolution_m).astype(np.int64)
+        ok = (gi >= 0) & (gi < clear.shape[0]) & (gj >= 0) & (gj < clear.shape[1])
+        return int(np.count_nonzero(clear[gi[ok], gj[ok]]))
+
     def cause(self, success: bool) -> str | None:
         if success:
             return None
@@ -351,6 +394,11 @@ class Attribution:
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,
                 "second_look_step": self.second_look_step,
+                "ghost_obstacle_cells": self.ghost_cells(),
+                "pose_error_m": {
+                    "max": round(max(self.pose_error_m, default=0.0), 3),
+                    "final": round(self.pose_error_m[-1] if self.pose_error_m else 0.0, 3),
+                },
                 "trace": {
                     "reid_score": self.trace_score,
                     "goal_px": self.trace_goal_px,
@@ -394,6 +442,28 @@ TABLE_HEADER = (
 )
 
 
+def noise_diagnostics(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Phantom obstacles and pose error, over successes and failures (medians): what a realism
+    profile's noise did to the agent's map and pose."""
+    out: dict[str, Any] = {}
+    for name, group in (
+        ("success", [r for r in records if r.get("success")]),
+        ("failure", [r for r in records if not r.get("success")]),
+    ):
+        ghosts = [
+            r["modiin"]["ghost_obstacle_cells"]
+            for r in group
+            if r.get("modiin", {}).get("ghost_obstacle_cells") is not None
+        ]
+        drift = [r["modiin"]["pose_error_m"]["max"] for r in group if "pose_error_m" in r.get("modiin", {})]
+        out[name] = {
+            "episodes": len(group),
+            "median_ghost_obstacle_cells": float(np.median(ghosts)) if ghosts else None,
+            "median_max_pose_error_m": round(float(np.median(drift)), 3) if drift else None,
+        }
+    return out
+
+
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     from sim.metrics import aggregate
 
@@ -407,6 +477,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         "variant": variants[0] if len(variants) == 1 else variants,
         "failure_causes": failure_distribution(records),
+        "noise": noise_diagnostics(records),
         "agent_median_ms_per_step": per_step,
         "table_md": TABLE_HEADER + "\n" + table_row(", ".join(variants), agg),
     }

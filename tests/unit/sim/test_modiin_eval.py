@@ -63,6 +63,7 @@ class Rec:
         self.reid_full_matcher = full_matcher
         self.reid_gate_score = 90.0 if full_matcher else 3.0
         self.reid_exit_score = None
+        self.map = None
 
 
 def attribution(steps):
@@ -80,7 +81,8 @@ def attribution(steps):
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
     a.second_look_step = None
-    obs = type("O", (), {"step": 0})()
+    a.pose_error_m = []
+    obs = type("O", (), {"step": 0, "pose": Pose2D(0.0, 4.5, 0.0)})()  # believed = true (1, 4.5)
     for k, (px, det, pts, *full) in enumerate(steps):
         a.oracle.px = px
         obs.step = k
@@ -129,10 +131,34 @@ def test_attribution_records_the_step_of_the_second_look():
         rec = Rec(False, [], mode="verify")
         rec.event, rec.context = "verify_approach", ("side_step", "second_look")  # read from the context, not the prose
         rec.reason = "side-step out of turning to and fro; exhausted, second look ..."
-        a.on_step(type("O", (), {"step": k})(), None, rec)
+        a.on_step(type("O", (), {"step": k, "pose": Pose2D(0.0, 4.5, 0.0)})(), None, rec)
     out = a.finish({"success": False})["modiin"]
     assert out["second_look_step"] == 3 and out["final_event"] == "verify_approach"
     assert out["final_context"] == ["side_step", "second_look"]
+
+
+def test_attribution_measures_the_pose_error_and_phantom_obstacles():
+    from agent.types import MapSnapshot
+    from sim.geometry import NavGrid
+
+    a = attribution([(0, False, [])] * 2)
+    assert a.finish({"success": False})["modiin"]["pose_error_m"] == {"max": 0.0, "final": 0.0}
+    a.on_step(type("O", (), {"step": 2, "pose": Pose2D(0.3, 4.9, 0.0)})(), None, Rec(False, []))  # 0.5 m off
+    out = a.finish({"success": False})["modiin"]
+    assert out["pose_error_m"] == {"max": 0.5, "final": 0.5} and out["ghost_obstacle_cells"] is None  # no map
+    # the true world: open floor x, y in [0, 6) but a wall along x < 1; the map: one obstacle cell
+    # on the wall (real), one in the open (a ghost), one just beside the wall (within the clearance)
+    nav = np.ones((120, 120), bool)
+    nav[:, :20] = False
+    a.oracle.navigable = NavGrid(nav, 0.05, (0.0, 0.0))
+    obstacle = np.zeros((120, 120), bool)
+    for x, y in ((0.5, 3.0), (4.0, 3.0), (1.05, 3.0)):  # world; the run frame is world - (1, 0)
+        obstacle[int(y / 0.05), int((x - 1.0) / 0.05) + 20] = True
+    z = np.zeros_like(obstacle)
+    rec = Rec(False, [])
+    rec.map = MapSnapshot(0.05, (-1.0, 0.0), obstacle, z, z, z, z, z, z)
+    a.on_step(type("O", (), {"step": 3, "pose": Pose2D(0.0, 4.5, 0.0)})(), None, rec)
+    assert a.finish({"success": False})["modiin"]["ghost_obstacle_cells"] == 1
 
 
 def test_distribution_and_table():
