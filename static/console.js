@@ -215,6 +215,9 @@
     if (ev.kind === "step") {  // keep the active run's row current without reloading the list
       const row = $("runs").querySelector(`tr[data-run="${ev.run_id}"]`);
       if (row) row.children[2].textContent = String(ev.step + 1);
+      // the selected run's summary, while it runs, counts its steps too
+      const running = ev.run_id === selected && $("details-summary").querySelector(".summary.active .sentence");
+      if (running) running.textContent = `${ev.step + 1} ${ev.step === 0 ? "step" : "steps"} so far.`;
       if (ev.run_id === activeRun) peek.offer(ev.run_id, ev.step);
       return;
     }

@@ -318,7 +318,13 @@ def test_scripted_run_on_phone_and_console(browser, scripted_console, tmp_path: 
         row = page.inner_text("#candidates table.cands tr.cand")
         assert "#1" in row and "0.4 m" in row and "12.5" in row
         frame.wait_for_selector("text=/Step \\d+:/", timeout=60_000)
-        page.screenshot(path=str(ARTIFACTS / "console_live_run.png"))
+        # the selected run's details count its steps while it runs (they said "0 steps so far")
+        page.wait_for_function(
+            "() => /[1-9]\\d* steps so far/.test(document.getElementById('details-summary').textContent)",
+            timeout=60_000,
+        )
+        page.locator("#candidates").scroll_into_view_if_needed()
+        page.screenshot(path=str(ARTIFACTS / "console_candidates.png"))
         provider.gate.set()
         poll(lambda: console.store.get_run(run_id)["status"], lambda s: s == "finished", 120, "end")
         n = console.store.get_run(run_id)["n_steps"]
