@@ -33,6 +33,8 @@ from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 from urllib.parse import urlsplit
 
+from console.words import size_words
+
 logger = logging.getLogger(__name__)
 
 # ASGI's callables, as Starlette types them (starlette.types), so the middleware composes with its own
@@ -252,14 +254,17 @@ class GuardMiddleware:
                     413,
                     {
                         "code": "request_too_large",
-                        "message": f"the request is {declared} bytes; the limit is {self.max_bytes}",
+                        "message": f"the request is {size_words(declared)}; the limit is {size_words(self.max_bytes)}",
                     },
                 )
                 return
         received = 0
         overflow = False
         answered = False
-        too_large = {"code": "request_too_large", "message": f"the request exceeds {self.max_bytes} bytes"}
+        too_large = {
+            "code": "request_too_large",
+            "message": f"the request is over the limit of {size_words(self.max_bytes)}",
+        }
 
         async def limited_receive() -> MutableMapping[str, Any]:
             nonlocal received, overflow
