@@ -1,0 +1,123 @@
+"""How depth noise spoils the agent's map, and what the mapping settings do about it (issue 30).
+
+Replays the true poses of recorded episodes (an ``imgnav eval`` output), renders each frame,
+and builds the agent's top-down map from exact depth and from the realism profile's depth,
+with several mapping settings. The pose is exact here (the depth alone is measured). Prints per
+setting: phantom obstacle cells (obstacles in open floor, well clear of every real obstacle, as
+``sim.evaluation.modiin`` counts them), and the share of the exact-depth map's obstacle cells
+the setting still finds (within one cell).
+
+    python benchmarks/map_noise.py --eval runs/i29_after_train10 --episodes data/episodes/train10 --every 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agent.mapping import GridMap, MappingConfig  # noqa: E402
+from agent.types import Observation, Pose2D  # noqa: E402
+from sim.camera import SIM_CAMERA  # noqa: E402
+from sim.episodes import load_episode_set  # noqa: E402
+from sim.evaluation.modiin import _open_floor  # noqa: E402
+from sim.evaluation.runner import read_records  # noqa: E402
+from sim.navigation import GRID_RESOLUTION_M  # noqa: E402
+from sim.realism import PROFILES, noisy_depth  # noqa: E402
+from sim.world import SimWorld  # noqa: E402
+
+SETTINGS: dict[str, MappingConfig] = {
+    "sim (min 1 point)": MappingConfig(),
+    "min 3 points": MappingConfig(obstacle_min_points=3),
+    "consistency 5%": MappingConfig(depth_consistency=0.05),
+    "votes cap 3": MappingConfig(obstacle_votes_cap=3),
+    "consistency + votes": MappingConfig(depth_consistency=0.05, obstacle_votes_cap=3),
+    "consistency + votes + min 3": MappingConfig(depth_consistency=0.05, obstacle_votes_cap=3, obstacle_min_points=3),
+}
+
+
+def _cells_world(grid: GridMap, start: Pose2D) -> np.ndarray:
+    ij = np.argwhere(grid.layers.obstacle)
+    return start.transform_xy(grid.ij_to_xy(ij)) if len(ij) else np.zeros((0, 2))
+
+
+def _ghosts(xy: np.ndarray, world: SimWorld) -> int:
+    nav = world.navigable_grid(GRID_RESOLUTION_M)
+    clear = _open_floor(nav)
+    ij = nav.xy_to_ij(xy)
+    ok = (ij[:, 0] >= 0) & (ij[:, 0] < clear.shape[0]) & (ij[:, 1] >= 0) & (ij[:, 1] < clear.shape[1])
+    return int(np.count_nonzero(clear[ij[ok, 0], ij[ok, 1]]))
+
+
+def _found(reference: np.ndarray, xy: np.ndarray, res: float) -> float:
+    """Share of reference obstacle positions with a setting's obstacle within one cell."""
+    if len(reference) == 0:
+        return 1.0
+    if len(xy) == 0:
+        return 0.0
+    lo = np.minimum(reference.min(axis=0), xy.min(axis=0)) - 1.0
+    hi = np.maximum(reference.max(axis=0), xy.max(axis=0)) + 1.0
+    shape = tuple(int(v) for v in np.ceil((hi - lo)[::-1] / res) + 1)
+    img = np.zeros(shape, np.uint8)
+    ij = np.floor((xy - lo)[:, ::-1] / res).astype(int)
+    img[ij[:, 0], ij[:, 1]] = 1
+    img = cv2.dilate(img, np.ones((3, 3), np.uint8))
+    rij = np.floor((reference - lo)[:, ::-1] / res).astype(int)
+    return float(img[rij[:, 0], rij[:, 1]].mean())
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--eval", required=True, help="an imgnav eval output (episodes.jsonl with trajectories)")
+    ap.add_argument("--episodes", required=True, help="its episode set")
+    ap.add_argument("--every", type=int, default=3, help="use every Nth pose of each trajectory")
+    ap.add_argument("--max-frames", type=int, default=120)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    es = load_episode_set(args.episodes)
+    by_id = {e.episode_id: e for e in es.episodes}
+    model = PROFILES["stretch"].depth
+    assert model is not None
+    totals = {name: [0, []] for name in SETTINGS}  # ghosts, found shares
+    for rec in read_records(Path(args.eval)):
+        ep = by_id.get(rec["episode_id"])
+        if ep is None:
+            continue
+        rng = np.random.default_rng([args.seed, ep.scene_seed])
+        world = SimWorld.from_seed(ep.scene_seed)
+        start = ep.start_pose_world
+        poses = [Pose2D(*p) for p in rec["trajectory"]["poses_world"]][:: args.every][: args.max_frames]
+        exact = GridMap(MappingConfig())
+        noisy = {name: GridMap(cfg) for name, cfg in SETTINGS.items()}
+        for p in poses:
+            r = world.render(p, SIM_CAMERA)
+            rel = p.relative_to(start)
+            kw = dict(rgb=r.rgb, pose=rel, intrinsics=SIM_CAMERA.intrinsics, goal_image=r.rgb, camera_height_m=SIM_CAMERA.height_m)
+            exact.update(Observation(depth_m=r.depth_m, **kw))
+            d = noisy_depth(r.depth_m, r.rgb, SIM_CAMERA.intrinsics.fx, model, rng)
+            for g in noisy.values():
+                g.update(Observation(depth_m=d, **kw))
+        ref = _cells_world(exact, start)
+        row = [f"{ep.episode_id}: exact ghosts {_ghosts(ref, world)}"]
+        for name, g in noisy.items():
+            xy = _cells_world(g, start)
+            ghosts, found = _ghosts(xy, world), _found(ref, xy, exact.resolution_m)
+            totals[name][0] += ghosts
+            totals[name][1].append(found)
+            row.append(f"{name}: {ghosts} / {found:.2f}")
+        print(" | ".join(row), flush=True)
+        world.close()
+    print("\nsetting: phantom obstacle cells (sum) / exact map's obstacles found (median share)")
+    for name, (ghosts, found) in totals.items():
+        print(f"  {name:32s} {ghosts:6d}   {np.median(found):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
