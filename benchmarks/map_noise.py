@@ -13,7 +13,6 @@ the setting still finds (within one cell).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -98,7 +97,13 @@ def main() -> int:
         for p in poses:
             r = world.render(p, SIM_CAMERA)
             rel = p.relative_to(start)
-            kw = dict(rgb=r.rgb, pose=rel, intrinsics=SIM_CAMERA.intrinsics, goal_image=r.rgb, camera_height_m=SIM_CAMERA.height_m)
+            kw = dict(
+                rgb=r.rgb,
+                pose=rel,
+                intrinsics=SIM_CAMERA.intrinsics,
+                goal_image=r.rgb,
+                camera_height_m=SIM_CAMERA.height_m,
+            )
             exact.update(Observation(depth_m=r.depth_m, **kw))
             d = noisy_depth(r.depth_m, r.rgb, SIM_CAMERA.intrinsics.fx, model, rng)
             for g in noisy.values():

@@ -60,7 +60,7 @@ def add_arguments(group: Any) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="config override, e.g. policy.verify=false (YAML value); repeatable",
+        help="config override, e.g. policy.last_resort=false (YAML value); repeatable (one KEY=VALUE each)",
     )
     group.add_argument(
         "--modiin-oracle-min-px", type=int, default=400, help="goal pixels in view for the oracle re-ID to fire"

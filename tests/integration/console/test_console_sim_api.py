@@ -68,7 +68,7 @@ def test_whole_run_to_completion_is_scored(client: TestClient) -> None:
         files={"goal_image": ("goal.png", gallery_png(client, g), "image/png")},
         # A start near the target and a small budget: the run ends by the agent's STOP or by the
         # budget, and is scored either way (the simulator's episode is over in both cases).
-        data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "40"},
+        data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "15"},
     )
     assert resp.status_code == 201, resp.text
     run = resp.json()
@@ -76,7 +76,7 @@ def test_whole_run_to_completion_is_scored(client: TestClient) -> None:
     done = wait_final(client, run["id"])
     assert done["status"] == "finished", done
     assert done["outcome"] in ("success", "failure"), done  # scored either way
-    assert done["n_steps"] <= 40
+    assert done["n_steps"] <= 15
     for key in ("success", "spl", "ne_m"):
         assert key in done["metrics"], done["metrics"]
     assert done["agent_config"]["reid"]["matcher"]
@@ -135,15 +135,19 @@ def test_a_search_under_the_stretch_profile(data_dir: Path) -> None:
         run = client.post(
             "/api/runs",
             files={"goal_image": ("goal.png", gallery_png(client, g), "image/png")},
-            data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "8"},
+            data={"home": h["id"], "start": start["id"], "gallery_item": g["item"], "max_steps": "5"},
         ).json()
         done = wait_final(client, run["id"])
         assert done["status"] == "finished" and done["outcome"] in ("success", "failure"), done
         traj = json.loads(client.get(done["artifacts"]["trajectory.json"]).content)
-        xy = [(s["x_m"], s["y_m"]) for s in traj["steps"]]
-        steps = [math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:])]
-        # moves land off the exact 0.25 m lattice (the actuation model), at least one of the moves made
-        assert any(s > 0.01 and abs(s - 0.25) > 0.003 for s in steps), steps
+        poses = [(s["x_m"], s["y_m"], s["yaw_rad"]) for s in traj["steps"]]
+        moves = [math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(poses, poses[1:])]
+        turns = [abs(math.degrees(math.remainder(b[2] - a[2], math.tau))) for a, b in zip(poses, poses[1:])]
+        # the robot's believed moves and turns land off the exact 0.25 m / 30 deg lattice (actuation, pose)
+        off = [m for m in moves if m > 0.01 and abs(m - 0.25) > 0.003] + [
+            t for t in turns if t > 1 and abs(t - 30) > 0.2
+        ]
+        assert off, (moves, turns)
 
 
 def test_second_run_409_and_stop_mid_run(client: TestClient) -> None:
