@@ -189,6 +189,13 @@
     $("save-why").textContent = why;
   }
 
+  // the job's state in words: "Extracting keypoints of 9 photos", "Matching pair 3 of 36", "Done: ..."
+  function statusWords(j) {
+    const verb = { extracting: "Extracting", matching: "Matching", queued: "Waiting to start", failed: "Failed" }[j.state];
+    if (j.state === "done") return "Done: every pair scored.";
+    return verb ? `${verb}${j.message ? " " + j.message : ""}` : j.message || j.state;
+  }
+
   async function follow(id) {
     running = true;
     pairsNote();
@@ -197,7 +204,7 @@
       for (;;) {
         const j = await imgnav.getJSON(`/api/calibration/jobs/${id}`);
         $("progress").value = j.progress;
-        $("status").textContent = `${j.state}: ${j.message || ""}`;
+        $("status").textContent = statusWords(j);
         if (j.state === "failed") throw new Error(j.error);
         if (j.state === "done") {
           $("deployment").value = j.deployment;

@@ -95,11 +95,12 @@ def test_calibrate_page_with_simulator_photos(browser, live_console: LiveServer,
         page.wait_for_selector("#run:not([disabled])")
         assert "9 photos: 9 same-object pairs" in page.inner_text("#pairs-note")
         page.click("#run")
-        page.wait_for_selector("#status:text-matches('extracting|matching|done')")
+        page.wait_for_selector("#status:text-matches('Extracting|Matching|Done')")
         # a reload while the job runs: the page finds the job again and shows its result
         page.reload()
         page.wait_for_selector("#result-card:not([hidden])", timeout=600_000)
         assert page.input_value("#deployment") == "stretch"
+        assert page.inner_text("#status") == "Done: every pair scored."  # was "done: done"
         proposal = page.inner_text("#proposal")
         assert (
             "Proposed tau" in proposal
