@@ -258,10 +258,13 @@ def open_session(
         extra["start_render"] = kept_start_render(worlds, key, world, start, SIM_CAMERA)
         if target_instance_id is not None:
             extra["scoring"] = kept_scoring(worlds, key, world, target_instance_id, start)
-    try:
-        # The backend's step budget is the run's, so a run that spends it is over for the
-        # backend too and can be scored.
-        backend = SimBackend(
+    # The backend's step budget is the run's, so a run that spends it is over for the
+    # backend too and can be scored.
+    return _session(
+        t0,
+        world,
+        owns,
+        lambda: SimBackend(
             world,
             goal_rgb,
             start,
@@ -272,7 +275,23 @@ def open_session(
             realism=realism,
             run_key=run_key,
             **extra,
-        )
+        ),
+        agent_config_path,
+        target_known=target_instance_id is not None,
+    )
+
+
+def _session(
+    t0: float,
+    world: Any,
+    owns: bool,
+    make_backend: Callable[[], Any],
+    agent_config_path: Path | None,
+    target_known: bool,
+) -> SimSession:
+    """The backend and the agent of a run; a world of the run's own is closed if either fails."""
+    try:
+        backend = make_backend()
         t1 = time.perf_counter()
         agent, agent_config = build_agent(agent_config_path or "sim")
     except BaseException:
@@ -280,7 +299,7 @@ def open_session(
             world.close()
         raise
     timings = {"open_backend_s": t1 - t0, "open_agent_s": time.perf_counter() - t1}
-    return SimSession(backend, agent, agent_config, target_known=target_instance_id is not None, open_timings=timings)
+    return SimSession(backend, agent, agent_config, target_known=target_known, open_timings=timings)
 
 
 def open_episode_session(
@@ -306,8 +325,11 @@ def open_episode_session(
     else:
         world, owns = worlds.get(key, lambda: SimWorld.from_seed(seed)), False
         extra["start_render"] = kept_start_render(worlds, key, world, episode.start_pose_world, SIM_CAMERA)
-    try:
-        backend = SimBackend.for_episode(
+    return _session(
+        t0,
+        world,
+        owns,
+        lambda: SimBackend.for_episode(
             world,
             episode,
             goal_rgb,
@@ -316,12 +338,7 @@ def open_episode_session(
             camera=SIM_CAMERA,
             realism=realism,
             **extra,
-        )
-        t1 = time.perf_counter()
-        agent, agent_config = build_agent(agent_config_path or "sim")
-    except BaseException:
-        if owns:
-            world.close()
-        raise
-    timings = {"open_backend_s": t1 - t0, "open_agent_s": time.perf_counter() - t1}
-    return SimSession(backend, agent, agent_config, target_known=True, open_timings=timings)
+        ),
+        agent_config_path,
+        target_known=True,
+    )
