@@ -277,8 +277,8 @@ def test_scripted_run_on_phone_and_console(browser, scripted_console, tmp_path: 
         frame = page.wait_for_selector("#viewer-frame").content_frame()
         assert frame is not None
         # the page attaches its listeners only after /api/config answered (in the same task as
-        # filling the backend filter)
-        page.wait_for_function("document.querySelector('#filter-backend option') !== null")
+        # filling the backend filter, whose first option, 'any robot', is in the HTML)
+        page.wait_for_function("document.querySelectorAll('#filter-backend option').length > 1")
         _check_legends(page, ["legend", "live-legend"])
         # the viewer's side panel is beside the scene, not over it (issue 33: it hid ~45% at 1280 x 800)
         canvas = frame.wait_for_selector("canvas", timeout=60_000)
