@@ -43,7 +43,16 @@ from typing import Any
 from sim.metrics import aggregate, bootstrap_ci
 
 RECORDS = "episodes.jsonl"
-FAILURE_CLASSES = ("reid_false_negative", "reid_false_positive", "exploration", "localisation", "local_navigation")
+# the failure causes of sim/evaluation/modiin.py Attribution, in the tables' order
+FAILURE_CLASSES = (
+    "reid_false_negative",
+    "reid_false_positive",
+    "exploration",
+    "mapping_ghosts",
+    "localisation",
+    "local_navigation",
+    "pose_drift",
+)
 
 
 def load_records(out_dir: str | Path) -> dict[str, dict[str, Any]]:

@@ -37,6 +37,7 @@ from agent.config import AgentConfig, agent_config_from_dict, load_agent_config
 from agent.configio import to_dict
 from agent.events import Context
 from agent.types import Action, AgentRecord, Observation
+from sim.evaluation.compare import FAILURE_CLASSES
 from sim.evaluation.registry import AgentSpec, register
 
 if TYPE_CHECKING:
@@ -44,7 +45,13 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-FAILURE_CLASSES = ("reid_false_negative", "reid_false_positive", "exploration", "localisation", "local_navigation")
+# A goal never seen is put on the map's phantom obstacles when the final map holds at least this
+# many obstacle cells in truly open floor (0.25 m^2 at 5 cm cells: enough to close a doorway or a
+# corridor once the planner dilates obstacles by the robot's radius; the exact simulator leaves 0).
+GHOST_CAUSE_CELLS = 100
+# A goal found whose localisation or approach failed is put on the pose when the believed position
+# was at some step this far from the true one (half the success radius).
+DRIFT_CAUSE_M = 0.5
 _MATCHERS: dict[tuple, Any] = {}  # per process: weights load once, not per episode
 _AGENTS_BY_ORACLE: dict[int, Any] = {}
 
@@ -209,22 +216,91 @@ def _open_floor(grid: Any) -> np.ndarray:
 _OPEN_FLOOR: dict[int, tuple[Any, np.ndarray]] = {}
 
 
+def failure_cause(
+    success: bool,
+    *,
+    candidate_to_goal_m: float | None,
+    candidate_on_goal_steps: int,
+    detections_goal_in_view: int,
+    detections_goal_out_of_view: int,
+    goal_seen_steps: int,
+    ghost_obstacle_cells: int | None,
+    max_pose_error_m: float,
+) -> str | None:
+    """The failure class of an episode from its summary (the rules: ``Attribution``); the
+    arguments are the record's ``modiin`` fields of the same names, so stored records can be
+    attributed again (``attribute_record``)."""
+    if success:
+        return None
+
+    def not_found() -> str:
+        if goal_seen_steps > 0:
+            return "reid_false_negative"
+        ghosts = ghost_obstacle_cells
+        return "mapping_ghosts" if ghosts is not None and ghosts >= GHOST_CAUSE_CELLS else "exploration"
+
+    def drift_or(cause: str) -> str:
+        if max_pose_error_m >= DRIFT_CAUSE_M:
+            return "pose_drift"
+        # found and localised but not reached through a map full of phantom obstacles
+        ghosts = ghost_obstacle_cells
+        if cause == "local_navigation" and ghosts is not None and ghosts >= GHOST_CAUSE_CELLS:
+            return "mapping_ghosts"
+        return cause
+
+    d = candidate_to_goal_m
+    if d is not None and d > 1.0:
+        if detections_goal_out_of_view > 0:
+            return "reid_false_positive"
+        if detections_goal_in_view > 0:
+            return drift_or("localisation")
+        # a candidate that no detection made (potential evidence, the last resort's choice): the
+        # goal itself was never recognised
+        return not_found()
+    if d is not None or candidate_on_goal_steps > 0:
+        return drift_or("local_navigation")
+    if detections_goal_in_view > 0:
+        return drift_or("localisation")
+    return not_found()
+
+
+def attribute_record(record: Mapping[str, Any]) -> str | None:
+    """``failure_cause`` of a stored ``imgnav eval`` record (records made before the noise
+    causes existed lack the phantom-cell count and the pose error: then neither is named)."""
+    m = record["modiin"]
+    return failure_cause(
+        bool(record.get("success")),
+        candidate_to_goal_m=m["candidate_to_goal_m"],
+        candidate_on_goal_steps=m["candidate_on_goal_steps"],
+        detections_goal_in_view=m["detections_goal_in_view"],
+        detections_goal_out_of_view=m["detections_goal_out_of_view"],
+        goal_seen_steps=m["goal_seen_steps"],
+        ghost_obstacle_cells=m.get("ghost_obstacle_cells"),
+        max_pose_error_m=m.get("pose_error_m", {}).get("max", 0.0),
+    )
+
+
 class Attribution:
     """Per-episode observer: collects per-step ground truth beside the agent's records and
     attributes a failure to one class (checked in this order):
 
     * the final goal candidate lies off the goal instance (its points' median > 1 m from the
       object's footprint): ``reid_false_positive`` when some detection fired with the goal
-      out of view (< 100 goal pixels), else ``localisation`` (detections with the goal in
-      view projected elsewhere);
+      out of view (< 100 goal pixels), ``localisation`` when detections with the goal in view
+      projected elsewhere, else (no detection made it: potential evidence or the last resort's
+      choice) the goal was never recognised, below;
     * the final candidate lies on the goal: ``local_navigation`` (found and localised, but
       the stop missed the success region or the budget ran out);
     * no final candidate, but a candidate on the goal existed earlier: ``local_navigation``
       (found and localised, then given up as unreachable or for lack of progress);
     * no final candidate, detections with the goal in view, yet no candidate on it ever:
       ``localisation`` (the goal was recognised but its points never landed on it);
-    * no candidate and the goal was never in view (>= ``seen_px``): ``exploration``;
-    * otherwise (the goal was in view and never detected there): ``reid_false_negative``.
+    * the goal never recognised: ``reid_false_negative`` when it was in view (>= ``seen_px``),
+      else ``mapping_ghosts`` when the final map holds >= ``GHOST_CAUSE_CELLS`` phantom
+      obstacle cells (depth noise closed the way), else ``exploration``;
+    * a ``localisation`` or ``local_navigation`` failure becomes ``pose_drift`` when the
+      believed position was ever ``DRIFT_CAUSE_M`` off the true one, and a ``local_navigation``
+      failure ``mapping_ghosts`` when the map holds >= ``GHOST_CAUSE_CELLS`` phantom cells.
     """
 
     def __init__(self, args: argparse.Namespace, episode: Any, oracle: Any) -> None:
@@ -358,16 +434,16 @@ class Attribution:
         return int(np.count_nonzero(clear[gi[ok], gj[ok]]))
 
     def cause(self, success: bool) -> str | None:
-        if success:
-            return None
-        d = self._candidate_distance_m()
-        if d is not None and d > 1.0:
-            return "reid_false_positive" if self.det_unseen > 0 else "localisation"
-        if d is not None or self.candidate_on_goal_steps > 0:
-            return "local_navigation"
-        if self.det_seen > 0:
-            return "localisation"
-        return "exploration" if self.seen_steps == 0 else "reid_false_negative"
+        return failure_cause(
+            success,
+            candidate_to_goal_m=self._candidate_distance_m(),
+            candidate_on_goal_steps=self.candidate_on_goal_steps,
+            detections_goal_in_view=self.det_seen,
+            detections_goal_out_of_view=self.det_unseen,
+            goal_seen_steps=self.seen_steps,
+            ghost_obstacle_cells=self.ghost_cells(),
+            max_pose_error_m=max(self.pose_error_m, default=0.0),
+        )
 
     def finish(self, episode_record: Mapping[str, Any]) -> Mapping[str, Any]:
         d = self._candidate_distance_m()

@@ -115,6 +115,62 @@ def test_attribution_classes():
     }
 
 
+def test_attribution_names_the_noise_causes():
+    """Issue 30: a goal never in view with a map full of phantom obstacles is a mapping failure,
+    a found goal missed with a drifted pose is the pose's, and a candidate no detection made
+    (the last resort's weak choice) is not a localisation failure."""
+    # the last resort drove to a candidate off the goal; no detection, the goal never in view
+    assert attribution([(0, False, OFF_GOAL)] * 3).cause(False) == "exploration"
+    assert attribution([(5000, False, OFF_GOAL)] * 3).cause(False) == "reid_false_negative"
+    for ghosts, cause in ((None, "exploration"), (99, "exploration"), (100, "mapping_ghosts")):
+        a = attribution([(0, False, OFF_GOAL)] * 3)
+        a.ghost_cells = lambda g=ghosts: g
+        assert a.cause(False) == cause
+        a = attribution([(0, False, [])] * 3)
+        a.ghost_cells = lambda g=ghosts: g
+        assert a.cause(False) == cause
+    # phantom obstacles do not excuse a goal that was in view
+    a = attribution([(5000, False, [])] * 3)
+    a.ghost_cells = lambda: 500
+    assert a.cause(False) == "reid_false_negative"
+    for steps, cause in (([(5000, True, ON_GOAL)], "local_navigation"), ([(5000, True, OFF_GOAL)], "localisation")):
+        a = attribution(steps)
+        a.pose_error_m = [0.1, 0.49]
+        assert a.cause(False) == cause
+        a.pose_error_m = [0.1, 0.5, 0.2]
+        assert a.cause(False) == "pose_drift"
+    # found and localised, not reached through phantom obstacles; a localisation failure is not theirs
+    for steps, cause in (([(5000, True, ON_GOAL)], "mapping_ghosts"), ([(5000, True, OFF_GOAL)], "localisation")):
+        a = attribution(steps)
+        a.ghost_cells = lambda: 100
+        assert a.cause(False) == cause
+    # a false positive stays one whatever the pose
+    a = attribution([(0, True, OFF_GOAL)])
+    a.pose_error_m = [2.0]
+    assert a.cause(False) == "reid_false_positive"
+
+
+def test_a_stored_record_is_attributed_as_the_episode_was():
+    from sim.evaluation.modiin import attribute_record
+
+    cases = [
+        ([(0, False, OFF_GOAL)] * 3, 150, [0.1]),
+        ([(5000, True, ON_GOAL)], 0, [0.7]),
+        ([(5000, True, OFF_GOAL)], 0, [0.2]),
+        ([(0, True, OFF_GOAL)], None, [0.0]),
+        ([(5000, False, [])] * 2, 400, [0.0]),
+    ]
+    seen = set()
+    for steps, ghosts, drift in cases:
+        a = attribution(steps)
+        a.ghost_cells = lambda g=ghosts: g
+        a.pose_error_m = drift
+        record = {"success": False, **a.finish({"success": False})}
+        assert record["failure_cause"] == attribute_record(record)
+        seen.add(record["failure_cause"])
+    assert seen == {"mapping_ghosts", "pose_drift", "localisation", "reid_false_positive", "reid_false_negative"}
+
+
 def test_attribution_counts_frames_the_gate_skipped_with_the_goal_in_view():
     # goal in view and gated; goal in view and matched; out of view and gated
     out = attribution([(5000, False, [], False), (5000, True, ON_GOAL, True), (0, False, [], False)]).finish(
