@@ -39,8 +39,11 @@ from scipy import ndimage
 
 from agent.types import Pose2D
 from sim.episodes import SPLITS, Episode, r4, save_episode_set, scene_seed_for, write_rgb
+from sim.geometry import NavGrid
 from sim.goals import sample_goal_images
-from sim.lattice import ViewpointGoal, plan_to_goal
+from sim.home import HomeSpec, Room
+from sim.lattice import LatticePlan, ViewpointGoal, plan_to_goal
+from sim.metrics import EpisodeMetrics
 from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, instance_viewpoints, reachable_component
 from sim.scene_gen import GENERATOR_VERSION
 from sim.world import SimWorld
@@ -85,82 +88,22 @@ def _generate(
     out_dir: Path,
     cfg: EpisodeGenConfig,
 ) -> list[Episode]:
-    grid = world.navigable_grid(GRID_RESOLUTION_M)
-    comp = reachable_component(grid)
+    floor = home_floor(world, cfg)
     home = world.home
-    by_cat: dict[str, list[int]] = {}
-    for inst in home.instances:
-        by_cat.setdefault(inst.category, []).append(inst.object_id)
-    cats = sorted(by_cat)
-    rng.shuffle(cats)
-    for cat in cats:
-        rng.shuffle(by_cat[cat])
-    order: list[int] = []
-    while any(by_cat.values()):  # round-robin over categories
-        for cat in cats:
-            if by_cat[cat]:
-                order.append(by_cat[cat].pop())
-    # starts keep START_CLEARANCE_M beyond the robot's radius from everything (not wedged
-    # against a wall or a bed edge), as a robot would be parked
-    r = int(round(cfg.start_clearance_m / grid.resolution_m))
-    disc = np.hypot(*np.mgrid[-r : r + 1, -r : r + 1]) <= r + 1e-9
-    start_ok = ndimage.binary_erosion(comp, structure=disc) if r > 0 else comp
-    free_ij = np.argwhere(start_ok)
-    free_xy = grid.ij_to_xy(free_ij)
+    order = goal_order(home, rng)
     episodes: list[Episode] = []
     for inst_id in order:
         if len(episodes) >= cfg.episodes_per_scene:
             break
         j = len(episodes)
-        vp = np.round(instance_viewpoints(world, inst_id, comp), 4)
+        vp = np.round(instance_viewpoints(world, inst_id, floor.comp), 4)
         if len(vp) < cfg.min_viewpoints:
             continue
-        field = geodesic_field(grid, vp, comp)
-        goal_room = home.room_at(*home.instance(inst_id).center_xyz_m()[:2])
-        name, lo, hi = cfg.difficulty_bins_m[(k * cfg.episodes_per_scene + j) % len(cfg.difficulty_bins_m)]
-        d = field[free_ij[:, 0], free_ij[:, 1]]
-        in_bin = (d >= lo) & (d < hi)
-        if not in_bin.any():
-            in_bin = d >= cfg.difficulty_bins_m[0][1]
-            name = "any"
-        cand = np.flatnonzero(in_bin)
-        if goal_room is not None:
-            # medium and hard episodes start in another room; easy ones in the goal's room when they can
-            same = np.array([home.room_at(*free_xy[c]) is goal_room for c in cand], dtype=bool)
-            pick = same if name == "easy" else ~same
-            if name != "any" and pick.any():
-                cand = cand[pick]
-        goal = ViewpointGoal(vp)
-        start = None
-        for _ in range(cfg.start_attempts):
-            c = int(cand[rng.integers(len(cand))])
-            pose = Pose2D(r4(free_xy[c, 0]), r4(free_xy[c, 1]), r4(rng.uniform(-math.pi, math.pi)))
-            if world.collides(pose.x_m, pose.y_m):
-                continue
-            plan = plan_to_goal(
-                world.move,
-                pose,
-                goal,
-                lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),  # noqa: B023 (used in this iteration)
-                weight=cfg.validate_weight,
-            )
-            if plan is None:
-                continue
-            geo_m = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
-            if cfg.oracle_check and not oracle_solves(world, pose, inst_id, vp, geo_m):
-                log.info(
-                    "scene %d instance %d: the oracle agent does not solve start %s; trying another",
-                    scene_seed,
-                    inst_id,
-                    pose,
-                )
-                continue
-            start = (pose, plan)
-            break
+        start = pick_start(world, floor, inst_id, vp, k * cfg.episodes_per_scene + j, rng, cfg, scene_seed)
         if start is None:
             log.debug("scene %d instance %d: no lattice-reachable start", scene_seed, inst_id)
             continue
-        pose, plan = start
+        pose, plan, name, goal_room = start.pose, start.plan, start.difficulty, start.goal_room
         allow = 1 if (k * cfg.episodes_per_scene + j) % cfg.distractor_every == 0 else 0
         images = sample_goal_images(world, inst_id, 1, seed=(scene_seed % 2**31, inst_id, 17), distractor_budget=allow)
         if not images:
@@ -172,7 +115,7 @@ def _generate(
         write_rgb(out_dir / rel, gi.rgb)
         start_room = home.room_at(pose.x_m, pose.y_m)
         obj = home.instance(inst_id)
-        geo = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
+        geo = start.geodesic_m
         info = {
             "difficulty": name,
             "start_room": start_room.name if start_room else None,
@@ -207,12 +150,131 @@ def _generate(
     return episodes
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class HomeFloor:
+    """Where a home's episodes live. grid: the 0.05 m navigable grid; comp: (H, W) bool, its
+    largest free component; free_ij / free_xy: (N, 2) the cells of ``comp`` a start may take
+    (``start_clearance_m`` to spare), grid indices and world metres."""
+
+    grid: NavGrid
+    comp: np.ndarray
+    free_ij: np.ndarray
+    free_xy: np.ndarray
+
+
+def home_floor(world: SimWorld, cfg: EpisodeGenConfig) -> HomeFloor:
+    grid = world.navigable_grid(GRID_RESOLUTION_M)
+    comp = reachable_component(grid)
+    # starts keep START_CLEARANCE_M beyond the robot's radius from everything (not wedged
+    # against a wall or a bed edge), as a robot would be parked
+    r = int(round(cfg.start_clearance_m / grid.resolution_m))
+    disc = np.hypot(*np.mgrid[-r : r + 1, -r : r + 1]) <= r + 1e-9
+    start_ok = ndimage.binary_erosion(comp, structure=disc) if r > 0 else comp
+    free_ij = np.argwhere(start_ok)
+    return HomeFloor(grid, comp, free_ij, grid.ij_to_xy(free_ij))
+
+
+def goal_order(home: HomeSpec, rng: np.random.Generator) -> list[int]:
+    """The home's instance ids, round-robin over its categories (both shuffled by ``rng``), so
+    rarer categories (toilet, tv, couch, bed) come early."""
+    by_cat: dict[str, list[int]] = {}
+    for inst in home.instances:
+        by_cat.setdefault(inst.category, []).append(inst.object_id)
+    cats = sorted(by_cat)
+    rng.shuffle(cats)
+    for cat in cats:
+        rng.shuffle(by_cat[cat])
+    order: list[int] = []
+    while any(by_cat.values()):  # round-robin over categories
+        for cat in cats:
+            if by_cat[cat]:
+                order.append(by_cat[cat].pop())
+    return order
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class StartPick:
+    """A validated start for a goal: its pose, the validation's lattice plan, the difficulty bin
+    it was drawn from, the geodesic to the goal (rounded, as stored) and the goal's room."""
+
+    pose: Pose2D
+    plan: LatticePlan
+    difficulty: str
+    geodesic_m: float
+    goal_room: Room | None
+
+
+def pick_start(
+    world: SimWorld,
+    floor: HomeFloor,
+    inst_id: int,
+    vp: np.ndarray,
+    bin_index: int,
+    rng: np.random.Generator,
+    cfg: EpisodeGenConfig,
+    scene_seed: int,
+) -> StartPick | None:
+    """A start for the goal instance ``inst_id`` (viewpoints ``vp``) in difficulty bin
+    ``bin_index`` (cycled), checked as the module docstring says; None if no attempt passes."""
+    grid, free_ij, free_xy, home = floor.grid, floor.free_ij, floor.free_xy, world.home
+    field = geodesic_field(grid, vp, floor.comp)
+    goal_room = home.room_at(*home.instance(inst_id).center_xyz_m()[:2])
+    name, lo, hi = cfg.difficulty_bins_m[bin_index % len(cfg.difficulty_bins_m)]
+    d = field[free_ij[:, 0], free_ij[:, 1]]
+    in_bin = (d >= lo) & (d < hi)
+    if not in_bin.any():
+        in_bin = d >= cfg.difficulty_bins_m[0][1]
+        name = "any"
+    cand = np.flatnonzero(in_bin)
+    if goal_room is not None:
+        # medium and hard episodes start in another room; easy ones in the goal's room when they can
+        same = np.array([home.room_at(*free_xy[c]) is goal_room for c in cand], dtype=bool)
+        pick = same if name == "easy" else ~same
+        if name != "any" and pick.any():
+            cand = cand[pick]
+    goal = ViewpointGoal(vp)
+    for _ in range(cfg.start_attempts):
+        c = int(cand[rng.integers(len(cand))])
+        pose = Pose2D(r4(free_xy[c, 0]), r4(free_xy[c, 1]), r4(rng.uniform(-math.pi, math.pi)))
+        if world.collides(pose.x_m, pose.y_m):
+            continue
+        plan = plan_to_goal(
+            world.move,
+            pose,
+            goal,
+            lambda x, y: max(geodesic_at(field, grid, x, y) - 0.1, 0.0),
+            weight=cfg.validate_weight,
+        )
+        if plan is None:
+            continue
+        geo_m = r4(geodesic_at(field, grid, pose.x_m, pose.y_m))
+        if cfg.oracle_check and not oracle_solves(world, pose, inst_id, vp, geo_m):
+            log.info(
+                "scene %d instance %d: the oracle agent does not solve start %s; trying another",
+                scene_seed,
+                inst_id,
+                pose,
+            )
+            continue
+        return StartPick(pose, plan, name, geo_m, goal_room)
+    return None
+
+
 def oracle_solves(
     world: SimWorld, start_world: Pose2D, goal_instance_id: int, viewpoints_xy_m: np.ndarray, shortest_path_m: float
 ) -> bool:
     """Whether the shortest-path oracle agent succeeds on this episode, as ``imgnav eval --agent
     oracle`` would run it (same backend, agent and metrics). The oracle never looks at the
     images, so one blank observation stands in for the renders."""
+    result, _ = oracle_run(world, start_world, goal_instance_id, viewpoints_xy_m, shortest_path_m)
+    return bool(result is not None and result.success)
+
+
+def oracle_run(
+    world: SimWorld, start_world: Pose2D, goal_instance_id: int, viewpoints_xy_m: np.ndarray, shortest_path_m: float
+) -> tuple[EpisodeMetrics | None, Pose2D]:
+    """The shortest-path oracle agent's metrics on this goal from ``start_world`` (as in
+    ``oracle_solves``) and the pose where it ended (a multi-goal sequence's next start)."""
     from sim.backend import SimBackend
     from sim.oracle_agent import run_blind
 
@@ -221,8 +283,7 @@ def oracle_solves(
         world, blank, start_world, goal_instance_id, np.asarray(viewpoints_xy_m, float), shortest_path_m
     )
     try:
-        result = run_blind(backend)
-        return bool(result is not None and result.success)
+        return run_blind(backend), backend.pose_world
     finally:
         backend.close()  # does not close the shared world
 

@@ -197,6 +197,8 @@ def load_episode_set(directory: str | Path) -> EpisodeSet:
         doc = json.loads(path.read_text())
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{path} not found: not an episode set (create one with `imgnav episodes`)") from exc
+    if doc.get("format") == "imgnav-sequences":
+        raise ValueError(f"{path}: a multi-goal set (imgnav episodes --goals N): read it with sim.sequences")
     if doc.get("format") != FORMAT:
         raise ValueError(f"{path}: not an imgnav episode set (format {doc.get('format')!r})")
     if doc.get("version") != FORMAT_VERSION:
