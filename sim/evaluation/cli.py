@@ -4,7 +4,9 @@
     imgnav eval --episodes data/episodes/val --agent oracle --ray auto --out runs/oracle-val   # on a Ray cluster
 
 Writes OUT/episodes.jsonl (one record per episode) and OUT/summary.json (sr, spl,
-ne, max_st, episodes, per_category, ...). Re-running skips finished episodes.
+ne, max_st, episodes, per_category, ...). Re-running skips finished episodes. On a multi-goal
+set (``imgnav episodes --goals N``) a record is a sequence with its subtasks and the summary
+sets the first goal against the later ones (``sim.evaluation.multigoal``).
 Agents come from ``sim.evaluation.registry`` (each adds its own flags below).
 """
 
@@ -37,6 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="only these episodes (ids, or @FILE with one id per line)",
     )
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (episodes grouped by scene)")
+    parser.add_argument(
+        "--subtask-budget",
+        type=int,
+        default=None,
+        metavar="STEPS",
+        help="multi-goal sets only: steps per goal of a sequence (default: the single-goal budget, 1000)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="discard earlier results in --out instead of resuming")
     parser.add_argument(
         "--fail-fast", action="store_true", help="stop at the first episode error instead of recording it"
@@ -177,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         log.warning("interrupted: the finished episodes are in %s; run the same command again to resume", out / RECORDS)
         return 130
-    brief = {k: summary[k] for k in ("episodes", "sr", "spl", "ne", "max_st", "errors")}
+    brief = {k: summary[k] for k in ("sequences", "episodes", "sr", "spl", "ne", "max_st", "errors") if k in summary}
     log.info("%s on %s: %s", args.agent, args.episodes, json.dumps(brief))
     log.info("wrote %s and %s", out / RECORDS, out / SUMMARY)
     return 0

@@ -53,18 +53,20 @@ import multiprocessing as mp
 import os
 import time
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from agent.loop import LoopError, LoopStep, run_loop
+from agent.types import Agent
 from sim.backend import SimBackend
-from sim.episodes import Episode, EpisodeSet, load_episode_set, r4
+from sim.episodes import Episode, EpisodeSet, r4
 from sim.evaluation.cli import realism_of
 from sim.evaluation.registry import AgentSpec, get_spec
 from sim.metrics import aggregate
+from sim.sequences import SequenceEpisode, SequenceSet, load_any_set
 from sim.world import SimWorld
 
 if TYPE_CHECKING:
@@ -114,13 +116,34 @@ def run_episode(
     t0 = time.perf_counter()
     if isinstance(goal_image, EpisodeSet):
         goal_image = goal_image.goal_image_path(episode)
-    realism = realism_of(args)
-    backend = SimBackend.for_episode(world, episode, goal_image, realism=realism)
+    backend = SimBackend.for_episode(world, episode, goal_image, realism=realism_of(args))
+    record, _ = run_on_backend(
+        backend, episode, spec, args, lambda oracle: spec.make_agent(args, oracle), fail_fast, t0
+    )
+    return record
+
+
+def run_on_backend(
+    backend: SimBackend,
+    episode: Episode,
+    spec: AgentSpec,
+    args: argparse.Namespace,
+    make_agent: Callable[[Any], Agent],
+    fail_fast: bool = False,
+    t0: float | None = None,
+) -> tuple[dict[str, Any], Agent | None]:
+    """Run the agent ``make_agent(backend.oracle)`` on a built backend to the end of ``episode``
+    (the backend's episode: one single-goal episode, or one subtask of a sequence) with the
+    spec's observer; returns the record and the agent (None if making it failed). Closes the
+    backend (its final pose stays readable)."""
+    t0 = time.perf_counter() if t0 is None else t0
+    realism = backend.realism
     agent_s = sim_s = 0.0
     error = None
     observer = None
+    agent = None
     try:
-        agent = spec.make_agent(args, backend.oracle)
+        agent = make_agent(backend.oracle)
         observer = spec.make_observer(args, episode, backend.oracle) if spec.make_observer else None
         sinks = (_ObserverSink(observer),) if observer is not None else ()
         try:
@@ -176,7 +199,7 @@ def run_episode(
     if observer is not None and error is None:
         record.update(dict(observer.finish(record)))
     backend.close()
-    return record
+    return record, agent
 
 
 _THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -227,7 +250,14 @@ def run_scene(
 
 
 def _run_group(episode_dir: str, episode_ids: list[str], agent: str, args: argparse.Namespace, fail_fast: bool):
-    es = load_episode_set(episode_dir)
+    es = load_any_set(episode_dir)
+    if isinstance(es, SequenceSet):  # one record per sequence (sim.evaluation.multigoal)
+        from sim.evaluation.multigoal import run_sequence_scene
+
+        seqs = [es.by_id(i) for i in episode_ids]
+        paths = [[es.goal_image_path(s, g) for g in range(len(s.goals))] for s in seqs]
+        yield from run_sequence_scene(seqs, paths, agent, args, fail_fast)
+        return
     episodes = [es.by_id(i) for i in episode_ids]
     yield from run_scene(episodes, [es.goal_image_path(e) for e in episodes], agent, args, fail_fast)
 
@@ -326,15 +356,29 @@ def run_evaluation(
     hold is an error), e.g. to re-run the episodes a change can affect.
 
     ``ray``: run the scenes as Ray tasks (``sim.evaluation.ray_backend``) instead of local
-    worker processes; records and summary are the same."""
+    worker processes; records and summary are the same.
+
+    A multi-goal set (``imgnav episodes --goals N``) gets one record per sequence and its own
+    summary (``sim.evaluation.multigoal``); ``args.subtask_budget`` (``--subtask-budget``) is
+    its budget per goal."""
     from tqdm import tqdm
 
-    es = load_episode_set(episode_dir)
+    es = load_any_set(episode_dir)
+    multi = isinstance(es, SequenceSet)
     spec = get_spec(agent)
     args = _clean_args(args)
+    budget: int | None = None
+    if multi:
+        from sim.evaluation import multigoal
+
+        budget = multigoal.subtask_budget(args)
+        if ray is not None:
+            raise ValueError("--ray does not run multi-goal sets yet; use --workers")
+    elif getattr(args, "subtask_budget", None) is not None:
+        raise ValueError("--subtask-budget is for multi-goal sets (imgnav episodes --goals N)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    selected = list(es.episodes)
+    selected: list[Episode | SequenceEpisode] = list(es.episodes)
     if episode_ids is not None:
         wanted = set(episode_ids)
         missing = sorted(wanted - {e.episode_id for e in selected})
@@ -356,6 +400,11 @@ def run_evaluation(
     if mixed:
         raise ValueError(
             f"{out / RECORDS} holds records made with another realism profile ({', '.join(sorted(mixed))}); "
+            "use another --out or --overwrite"
+        )
+    if multi and {r.get("subtask_budget") for r in done.values()} - {budget}:
+        raise ValueError(
+            f"{out / RECORDS} holds sequences run with another --subtask-budget than {budget}; "
             "use another --out or --overwrite"
         )
     todo = [e for e in selected if e.episode_id not in done]
@@ -380,6 +429,7 @@ def run_evaluation(
         if ray is not None:
             from sim.evaluation.ray_backend import run_scenes_on_ray
 
+            assert isinstance(es, EpisodeSet)  # multi-goal sets were refused above
             run_scenes_on_ray(ray, es, list(groups.values()), agent, args, fail_fast, write, is_done=done.__contains__)
         elif workers <= 1 or len(groups) <= 1:
             if spec.worker_init:
@@ -423,7 +473,10 @@ def run_evaluation(
                 raise RuntimeError(f"an evaluation worker failed: {fatal}")
     bar.close()
     records = [done[e.episode_id] for e in selected if e.episode_id in done]
-    summary = aggregate([{**r, "ne": float(r["ne"])} for r in records])
+    if multi:
+        summary = multigoal.summarize_sequences(records, spec)
+    else:
+        summary = aggregate([{**r, "ne": float(r["ne"])} for r in records])
     summary.update(
         {
             "agent": agent,
@@ -438,7 +491,7 @@ def run_evaluation(
             },
         }
     )
-    if spec.summarize:
+    if spec.summarize and not multi:  # a multi-goal summary has the agent's own over its subtasks
         summary.update(dict(spec.summarize(records)))
     (out / SUMMARY).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")
     return summary

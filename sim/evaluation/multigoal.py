@@ -1,0 +1,306 @@
+"""Evaluating multi-goal sets (issue 31): one record per sequence, every subtask scored.
+
+A sequence (``sim.sequences``) is run goal after goal in one built home. Subtask 0 starts at
+the sequence's start; subtask k starts where the robot stood at the end of subtask k - 1,
+whatever happened there (a stop, the budget, an error), and its SPL uses the shortest path
+from that actual start. Each subtask is a single-goal run on its own ``SimBackend`` (its own
+step budget, ``--subtask-budget``, the single-goal budget by default; its own start-relative
+frame), through ``runner.run_on_backend``, so it is scored and observed exactly as a
+single-goal episode (the Mod-IIN failure attribution included).
+
+The agent of each subtask comes from ``agent_for_goal``: the one place where an agent is
+handed from one goal to the next. Today it makes a fresh agent per goal (every subtask starts
+from nothing, as a single-goal episode); an agent with a memory of the home plugs in there.
+
+``OUT/episodes.jsonl`` holds one record per sequence: its id, home, budget, sequence figures
+(``success``: every goal reached; ``subtasks_succeeded``; ``spl``: the mean of its subtasks'),
+the fields every subtask shares (``variant``, ``agent_config``, ``realism``) and ``subtasks``:
+one entry per goal with what a single-goal record holds (metrics, trajectory, stop reason,
+timings, the agent observer's fields such as ``failure_cause`` and ``modiin``) and the goal's
+index, kind (new, repeat, look-alike), instance and start pose. ``summary.json``
+(``summarize_sequences``): the figures over all subtasks, the first goal against the later
+ones, per goal index and kind, and the sequences, SR and SPL with 95% intervals from a
+bootstrap over homes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent.types import MAX_STEPS, Agent, Pose2D
+from sim.backend import GoalScoring, SimBackend
+from sim.episodes import r4, read_rgb
+from sim.evaluation.cli import realism_of
+from sim.evaluation.registry import AgentSpec, get_spec
+from sim.evaluation.runner import run_on_backend
+from sim.metrics import aggregate, bootstrap_ci
+from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field
+from sim.sequences import SequenceEpisode
+from sim.world import SimWorld
+
+log = logging.getLogger(__name__)
+
+# Fields of a subtask's record that are the sequence's (kept once, in the sequence's record).
+SEQUENCE_FIELDS = ("episode_id", "scene_seed", "agent", "realism", "variant", "agent_config")
+
+
+def subtask_budget(args: argparse.Namespace) -> int:
+    """Steps per subtask: ``--subtask-budget``, else the single-goal budget."""
+    budget = getattr(args, "subtask_budget", None)
+    budget = MAX_STEPS if budget is None else int(budget)
+    if budget <= 0:
+        raise ValueError("--subtask-budget must be positive")
+    return budget
+
+
+@dataclass(frozen=True, slots=True)
+class SubtaskHandoff:
+    """What the agent of a goal may know about the goals before it (never ground truth).
+
+    goal_index: this goal's index in the sequence (0: the first).
+    previous_end_pose: where the previous subtask ended as the agent believed it, in that
+        subtask's start-relative frame, i.e. the origin of this subtask's frame in the previous
+        one (None for the first goal). Under a realism profile the simulator restarts the pose
+        estimate at each subtask's true start, so this is the belief, not the truth."""
+
+    goal_index: int
+    previous_end_pose: Pose2D | None
+
+
+def agent_for_goal(
+    previous: Agent | None, spec: AgentSpec, args: argparse.Namespace, oracle: Any, handoff: SubtaskHandoff
+) -> Agent:
+    """The agent for the next goal of a sequence, given the previous goal's agent (None before
+    the first goal or when making it failed): THE hook between goals.
+
+    Today every goal starts from scratch: the previous agent is dropped and a fresh one is made
+    (``oracle`` is this subtask's ``SimOracle``; only oracle agents and ablations read it). An
+    agent with a memory of the home returns the previous agent (or one built from its memory)
+    here, set for the new frame given by ``handoff``; note that the loop calls ``reset`` with the
+    new goal image before the first step, so such an agent's ``reset`` must keep the memory."""
+    return spec.make_agent(args, oracle)
+
+
+NextAgent = Callable[[Agent | None, AgentSpec, argparse.Namespace, Any, SubtaskHandoff], Agent]
+
+
+def _subtask_backend(
+    world: SimWorld,
+    seq: SequenceEpisode,
+    goal_index: int,
+    start_pose_world: Pose2D,
+    goal_image: np.ndarray,
+    args: argparse.Namespace,
+    budget: int,
+) -> tuple[SimBackend, Any]:
+    """The backend of one subtask and its single-goal ``Episode`` (``SequenceEpisode.subtask``)."""
+    goal = seq.goals[goal_index]
+    vp = goal.viewpoints_array()
+    if goal_index == 0:  # the stored shortest path, as a single-goal episode uses it
+        episode = seq.subtask(0, start_pose_world, seq.geodesic_distance_m)
+        backend = SimBackend(
+            world,
+            goal_image,
+            start_pose_world,
+            goal.goal_instance_id,
+            vp,
+            seq.geodesic_distance_m,
+            max_steps=budget,
+            episode=episode,
+            realism=realism_of(args),
+        )
+        return backend, episode
+    # later goals: the shortest path from where the robot actually is (the geodesic field to the
+    # stored viewpoints, computed once and handed to the backend for NE and the oracle)
+    grid = world.navigable_grid(GRID_RESOLUTION_M)
+    field = geodesic_field(grid, vp)
+    shortest_m = r4(geodesic_at(field, grid, start_pose_world.x_m, start_pose_world.y_m))
+    if not math.isfinite(shortest_m):
+        log.warning("%s goal %d: no path from %s to the goal", seq.episode_id, goal_index, start_pose_world)
+    episode = seq.subtask(goal_index, start_pose_world, shortest_m)
+    backend = SimBackend(
+        world,
+        goal_image,
+        start_pose_world,
+        goal.goal_instance_id,
+        shortest_path_m=shortest_m,
+        max_steps=budget,
+        episode=episode,
+        scoring=lambda: GoalScoring(vp, field),
+        realism=realism_of(args),
+    )
+    return backend, episode
+
+
+def run_sequence(
+    world: SimWorld,
+    seq: SequenceEpisode,
+    goal_images: Sequence[np.ndarray | str | Path],
+    spec: AgentSpec,
+    args: argparse.Namespace,
+    fail_fast: bool = False,
+    next_agent: NextAgent = agent_for_goal,
+) -> dict[str, Any]:
+    """Run every goal of ``seq`` in an already built world, each from where the last ended;
+    returns the sequence's record (module docstring). goal_images: one per goal, arrays or PNG paths."""
+    t0 = time.perf_counter()
+    budget = subtask_budget(args)
+    pose = seq.start_pose_world
+    agent: Agent | None = None
+    previous_end: Pose2D | None = None
+    subtasks: list[dict[str, Any]] = []
+    shared: dict[str, Any] = {}
+    for g, goal in enumerate(seq.goals):
+        image = goal_images[g]
+        image = read_rgb(image) if isinstance(image, (str, Path)) else image
+        backend, episode = _subtask_backend(world, seq, g, pose, image, args, budget)
+        handoff = SubtaskHandoff(g, previous_end)
+        previous = agent
+
+        def make(oracle: Any, previous: Agent | None = previous, handoff: SubtaskHandoff = handoff) -> Agent:
+            return next_agent(previous, spec, args, oracle, handoff)
+
+        rec, agent = run_on_backend(backend, episode, spec, args, make, fail_fast)
+        believed = backend.estimate_world
+        previous_end = (
+            Pose2D() if believed == backend.start_pose_world else believed.relative_to(backend.start_pose_world)
+        )
+        p = backend.start_pose_world
+        entry: dict[str, Any] = {
+            "goal_index": g,
+            "subtask_id": episode.episode_id,
+            "kind": goal.kind,
+            "of_goal": goal.of_goal,
+            "goal_instance_id": goal.goal_instance_id,
+            "start_pose_world": [r4(p.x_m), r4(p.y_m), r4(p.yaw_rad)],
+        }
+        for key in SEQUENCE_FIELDS:
+            if key in rec:
+                shared.setdefault(key, rec[key])
+        entry.update({k: v for k, v in rec.items() if k not in SEQUENCE_FIELDS})
+        subtasks.append(entry)
+        pose = backend.pose_world  # the next goal starts where this one ended
+    steps = sum(s["steps"] for s in subtasks)
+    errors = [f"goal {s['goal_index']}: {s['error']}" for s in subtasks if s.get("error")]
+
+    def per_step(key: str) -> float:
+        return r4(sum(s["timing"][key] * s["steps"] for s in subtasks) / max(steps, 1))
+
+    record: dict[str, Any] = {
+        "episode_id": seq.episode_id,
+        "scene_seed": seq.scene_seed,
+        "agent": spec.name,
+        "goals": len(seq.goals),
+        "subtask_budget": budget,
+        "success": all(s["success"] for s in subtasks),
+        "subtasks_succeeded": sum(bool(s["success"]) for s in subtasks),
+        "spl": r4(sum(s["spl"] for s in subtasks) / len(subtasks)),
+        "steps": steps,
+        "error": errors[0] if errors else None,
+        **{k: v for k, v in shared.items() if k not in ("episode_id", "scene_seed", "agent")},
+        "timing": {
+            "wall_s": r4(time.perf_counter() - t0),
+            "agent_ms_per_step": per_step("agent_ms_per_step"),
+            "sim_ms_per_step": per_step("sim_ms_per_step"),
+        },
+        "subtasks": subtasks,
+    }
+    return record
+
+
+def run_sequence_scene(
+    sequences: list[SequenceEpisode],
+    goal_images: Sequence[Sequence[np.ndarray | str | Path]],
+    agent: str,
+    args: argparse.Namespace,
+    fail_fast: bool = False,
+) -> Iterator[dict[str, Any]]:
+    """Run sequences of one home (built once) in order, yielding each record as it finishes
+    (the work unit of local and worker-process evaluation, as ``runner.run_scene``)."""
+    spec = get_spec(agent)
+    t0 = time.perf_counter()
+    world = SimWorld.from_seed(sequences[0].scene_seed)
+    build_s = time.perf_counter() - t0
+    try:
+        for seq, images in zip(sequences, goal_images, strict=True):
+            rec = run_sequence(world, seq, images, spec, args, fail_fast)
+            rec["timing"]["scene_build_s"] = r4(build_s)
+            yield rec
+    finally:
+        world.close()
+
+
+# --- summary ---------------------------------------------------------------------------------
+
+
+def subtask_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every subtask of the sequence records as a single-goal record would hold it: with its
+    sequence's shared fields (home, agent, variant, ...) and ``ne`` as a float."""
+    rows = []
+    for r in records:
+        shared = {k: r[k] for k in SEQUENCE_FIELDS if k in r}
+        for s in r["subtasks"]:
+            rows.append(
+                {**shared, **s, "episode_id": s["subtask_id"], "sequence_id": r["episode_id"], "ne": float(s["ne"])}
+            )
+    return rows
+
+
+def _group(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """SR, SPL (with intervals over homes), NE, Max-ST of some subtasks, without the categories."""
+    block = aggregate(rows)
+    block.pop("per_category")
+    return block
+
+
+def summarize_sequences(records: list[dict[str, Any]], spec: AgentSpec | None = None) -> dict[str, Any]:
+    """summary.json of a multi-goal run: ``sr``, ``spl``, ``ne``, ``max_st`` and ``episodes``
+    over all subtasks (``episodes`` counts subtasks, ``sequences`` sequences), per category;
+    ``first_goal`` against ``later_goals``; ``by_goal_index``; ``by_kind`` (later goals);
+    ``sequence`` (all goals reached, goals reached, mean SPL, steps); and the agent's own
+    summary (``spec.summarize``) over the subtasks."""
+    rows = subtask_rows(records)
+    out = aggregate(rows)
+    homes = [r["scene_seed"] for r in records]
+    seq_success = [float(bool(r["success"])) for r in records]
+    seq_spl = [float(r["spl"]) for r in records]
+    n = max(len(records), 1)
+    out.update(
+        {
+            "sequences": len(records),
+            "goals_per_sequence": sorted({int(r["goals"]) for r in records}),
+            "subtask_budget": sorted({int(r["subtask_budget"]) for r in records}),
+            "first_goal": _group([r for r in rows if r["goal_index"] == 0]),
+            "later_goals": _group([r for r in rows if r["goal_index"] > 0]),
+            "by_goal_index": {
+                str(g): _group([r for r in rows if r["goal_index"] == g])
+                for g in sorted({r["goal_index"] for r in rows})
+            },
+            "by_kind": {
+                kind: _group([r for r in rows if r["goal_index"] > 0 and r["kind"] == kind])
+                for kind in sorted({r["kind"] for r in rows if r["goal_index"] > 0})
+            },
+            "sequence": {
+                "sequences": len(records),
+                "homes": len(set(homes)),
+                "all_goals_sr": sum(seq_success) / n,
+                "all_goals_sr_ci95": list(bootstrap_ci(seq_success, homes)),
+                "goals_reached": sum(int(r["subtasks_succeeded"]) for r in records) / n,
+                "spl": sum(seq_spl) / n,
+                "spl_ci95": list(bootstrap_ci(seq_spl, homes)),
+                "steps": sum(int(r["steps"]) for r in records) / n,
+            },
+        }
+    )
+    if spec is not None and spec.summarize and rows:
+        out.update(dict(spec.summarize(rows)))
+    return out
