@@ -51,11 +51,6 @@ class MappingConfig:
     # a reading that differs from the median of its 3x3 neighbourhood by more than this share is
     # dropped (a stereo camera's flying pixels between two surfaces); 0: off
     depth_consistency: float = 0.0
-    # obstacle evidence over frames: a cell hit in a frame gains a vote, a cell the frame sees
-    # through (free, at least ``clear_margin_m`` short of its column's first obstacle) loses one;
-    # an obstacle while its votes are positive (capped at +-``obstacle_votes_cap``). 0: off (a hit is for ever)
-    obstacle_votes_cap: int = 0
-    clear_margin_m: float = 0.15
     free_fan: bool = True
     robot_radius_m: float = ROBOT_RADIUS_M
     collision_length_m: float = 0.10  # depth of the collision mark in front of the robot
@@ -75,13 +70,10 @@ class MapLayers:
     # there; a later detection still counts (the rejection only said "not confirmed yet")
     potential_blacklist: np.ndarray
     frontier_blacklist: np.ndarray  # frontiers given up (reached, unreachable, stalled); may be forgiven
-    obstacle_votes: np.ndarray  # int16 evidence per cell (``MappingConfig.obstacle_votes_cap``)
 
     @staticmethod
     def empty(shape: tuple[int, int]) -> MapLayers:
-        return MapLayers(
-            *(np.zeros(shape, np.int16 if f.name == "obstacle_votes" else bool) for f in dataclasses.fields(MapLayers))
-        )
+        return MapLayers(*(np.zeros(shape, bool) for _ in dataclasses.fields(MapLayers)))
 
     def names(self) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(self))
@@ -211,46 +203,24 @@ class GridMap:
         is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
         h, w = self.shape
         seen = inside.copy()
-        cleared = None
         if cfg.free_fan and len(xy):
             # Floor seen *beyond* the first obstacle of its column (over a bed, between chair
             # legs) comes in sparse rows at range; marked explored it would riddle the map with
             # one-cell frontiers. Like a 2D laser scan, each column counts up to its first hit.
-            if cfg.obstacle_votes_cap > 0:
-                cleared = np.zeros(self.shape, bool)
-            r_end = self._fill_fan(obs, cloud.uv_px[:, 0], cloud.xy_base, is_obstacle, cleared)
+            r_end = self._fill_fan(obs, cloud.uv_px[:, 0], cloud.xy_base, is_obstacle)
             col = cloud.uv_px[:, 0] // cfg.depth_stride_px
             rng = np.hypot(cloud.xy_base[:, 0], cloud.xy_base[:, 1])
             seen &= is_obstacle | (rng <= r_end[col] + self.resolution_m)
         flat = ij[seen, 0] * w + ij[seen, 1]
         self.layers.explored.reshape(-1)[flat] = True
         obst_flat = ij[inside & is_obstacle, 0] * w + ij[inside & is_obstacle, 1]
-        hit = np.zeros(h * w, bool)
         if len(obst_flat):
-            hit = np.bincount(obst_flat, minlength=h * w) >= cfg.obstacle_min_points
-        if cfg.obstacle_votes_cap <= 0:
-            self.layers.obstacle.reshape(-1)[hit] = True
-        else:
-            votes = self.layers.obstacle_votes.reshape(-1)
-            cap = cfg.obstacle_votes_cap
-            votes[hit] = np.minimum(votes[hit] + 1, cap)
-            if cleared is not None:
-                seen_free = cleared.reshape(-1) & ~hit
-                votes[seen_free] = np.maximum(votes[seen_free] - 1, -cap)
-            self.layers.obstacle[:] = self.layers.obstacle_votes > 0
+            counts = np.bincount(obst_flat, minlength=h * w)
+            self.layers.obstacle.reshape(-1)[counts >= cfg.obstacle_min_points] = True
         return MapUpdate(len(xy), int(np.count_nonzero(is_obstacle)), n_beyond, n_outside, grew)
 
-    def _fill_fan(
-        self,
-        obs: Observation,
-        u_px: np.ndarray,
-        xy_base: np.ndarray,
-        is_obstacle: np.ndarray,
-        cleared: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Mark explored the polygon swept by each column's line of sight (see module docstring);
-        ``cleared`` (optional, a layer-shaped buffer) gets the same fan ending ``clear_margin_m``
-        short of each column's end: the cells this frame saw through.
+    def _fill_fan(self, obs: Observation, u_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray) -> np.ndarray:
+        """Mark explored the polygon swept by each column's line of sight (see module docstring).
 
         Returns r_end: (n_cols,) float32 horizontal range of each column's first obstacle, or of
         its farthest point when it has none (inf for a column without points)."""
@@ -276,10 +246,6 @@ class GridMap:
         pts = np.stack([obs.pose.x_m + r * np.cos(bearing), obs.pose.y_m + r * np.sin(bearing)], axis=1)
         pts = np.vstack([[obs.pose.x_m, obs.pose.y_m], pts])
         self._fill_polygon(pts, self.layers.explored)
-        if cleared is not None:
-            rc = np.maximum(r - self.config.clear_margin_m, 0.0)
-            near = np.stack([obs.pose.x_m + rc * np.cos(bearing), obs.pose.y_m + rc * np.sin(bearing)], axis=1)
-            self._fill_polygon(np.vstack([[obs.pose.x_m, obs.pose.y_m], near]), cleared)
         return r_end
 
     def _fill_polygon(self, xy_m: np.ndarray, layer: np.ndarray) -> None:
@@ -321,9 +287,6 @@ class GridMap:
         cells = cells[self.in_bounds(cells)]
         for layer in (self.layers.collision, self.layers.obstacle):
             layer[cells[:, 0], cells[:, 1]] = False
-        self.layers.obstacle_votes[cells[:, 0], cells[:, 1]] = np.minimum(
-            self.layers.obstacle_votes[cells[:, 0], cells[:, 1]], 0
-        )
         self.layers.explored[cells[:, 0], cells[:, 1]] = True
 
     def mark_collision(self, pose: Pose2D) -> None:

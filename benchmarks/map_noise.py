@@ -31,13 +31,13 @@ from sim.navigation import GRID_RESOLUTION_M  # noqa: E402
 from sim.realism import PROFILES, noisy_depth  # noqa: E402
 from sim.world import SimWorld  # noqa: E402
 
+# every setting written out (the defaults may move): the unfiltered map is the reference
+UNFILTERED = MappingConfig(obstacle_min_points=1, depth_consistency=0.0)
 SETTINGS: dict[str, MappingConfig] = {
-    "sim (min 1 point)": MappingConfig(),
-    "min 3 points": MappingConfig(obstacle_min_points=3),
-    "consistency 5%": MappingConfig(depth_consistency=0.05),
-    "votes cap 3": MappingConfig(obstacle_votes_cap=3),
-    "consistency + votes": MappingConfig(depth_consistency=0.05, obstacle_votes_cap=3),
-    "consistency + votes + min 3": MappingConfig(depth_consistency=0.05, obstacle_votes_cap=3, obstacle_min_points=3),
+    "unfiltered (min 1 point)": UNFILTERED,
+    "min 3 points": MappingConfig(obstacle_min_points=3, depth_consistency=0.0),
+    "consistency 5%": MappingConfig(obstacle_min_points=1, depth_consistency=0.05),
+    "consistency + min 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05),
 }
 
 
@@ -92,7 +92,7 @@ def main() -> int:
         world = SimWorld.from_seed(ep.scene_seed)
         start = ep.start_pose_world
         poses = [Pose2D(*p) for p in rec["trajectory"]["poses_world"]][:: args.every][: args.max_frames]
-        exact = GridMap(MappingConfig())
+        exact = GridMap(UNFILTERED)
         noisy = {name: GridMap(cfg) for name, cfg in SETTINGS.items()}
         for p in poses:
             r = world.render(p, SIM_CAMERA)

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -97,3 +98,44 @@ def test_the_robot_footprint_clears_misplaced_collision_marks():
     grid.mark_visited((0.0, 0.0), (0.22, 0.0))  # ... but the robot then stood there
     assert not grid.layers.collision[cell(grid, 0.22, 0.0)]
     assert grid.layers.visited[cell(grid, 0.22, 0.0)]
+
+
+def _interior_obstacles(grid) -> int:
+    inner = grid.xy_to_ij(np.array([[0.0, -1.5], [4.8, 1.5]]))
+    return int(np.count_nonzero(grid.layers.obstacle[inner[0, 0] : inner[1, 0], inner[0, 1] : inner[1, 1]]))
+
+
+def test_flying_pixels_are_filtered_before_they_reach_the_map():
+    """A stereo camera's flying pixels (isolated readings between two surfaces: on a ray that
+    sees the floor, a reading short of it lies above the floor) become phantom obstacles in open
+    floor unless filtered: either by the consistency check (a reading off its 3x3 median) or by
+    asking several points of a cell in one frame. The real walls stay found with both."""
+    obs = observation(ROOM, Pose2D())
+    depth = obs.depth_m.copy()
+    rows, cols = np.mgrid[0 : depth.shape[0] : 5, 0 : depth.shape[1] : 5]
+    floor = depth[rows, cols] < 4.0  # lower rows: the floor in front of the robot
+    depth[rows[floor], cols[floor]] *= 0.5
+    noisy = dataclasses.replace(obs, depth_m=depth)
+
+    def build(**cfg):
+        grid = GridMap(MappingConfig(depth_stride_px=1, **cfg))
+        grid.update(noisy)
+        return grid
+
+    unfiltered = build(obstacle_min_points=1, depth_consistency=0.0)
+    assert _interior_obstacles(unfiltered) > 20  # the flying pixels made phantom obstacles
+    for cfg in (
+        {"obstacle_min_points": 1, "depth_consistency": 0.05},
+        {"obstacle_min_points": 3, "depth_consistency": 0.0},
+    ):
+        grid = build(**cfg)
+        assert _interior_obstacles(grid) == 0, cfg
+        assert grid.layers.obstacle[cell(grid, 5.02, 0.0)] and grid.layers.obstacle[cell(grid, 5.02, 1.0)], cfg
+    # exact depth: the filters change nothing in this room
+    exact = [
+        GridMap(MappingConfig(depth_stride_px=1, obstacle_min_points=n, depth_consistency=c))
+        for n, c in ((1, 0.0), (3, 0.05))
+    ]
+    for g in exact:
+        g.update(obs)
+    assert np.array_equal(exact[0].layers.obstacle, exact[1].layers.obstacle)
