@@ -17,6 +17,7 @@ from agent.configio import from_dict, load_yaml
 from agent.frontier import FrontierConfig
 from agent.localisation import LocalisationConfig
 from agent.mapping import MappingConfig
+from agent.memory import MemoryConfig
 from agent.planner import PlannerConfig
 from agent.reid.identifier import ReIDConfig
 from agent.segmentation import SegmentationConfig
@@ -115,6 +116,8 @@ class AgentConfig:
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     localisation: LocalisationConfig = field(default_factory=LocalisationConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    # the memory of a home across goals (agent/memory.py): used only by an agent given a HomeMemory
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
 
 
 DEPLOYMENTS = ("sim", "stretch")

@@ -113,6 +113,25 @@ class GoalLocaliser:
         )
         return cloud.xyz_run[cloud.xyz_run[:, 2] >= cfg.min_height_m]
 
+    def keypoint_points(self, obs: Observation, uv: np.ndarray) -> np.ndarray:
+        """Each egocentric pixel (N, 2) (x, y) lifted as ``points_from_pixels`` lifts it, one row per
+        pixel: (N, 3) float32 run-frame points, NaN rows where that drops it (no valid depth, out of
+        range, on the floor). The agent's memory of a home keeps these for every keypoint of a
+        keyframe (``agent.memory``), so a later goal's matches on it become the same goal points a
+        live frame would give."""
+        cfg = self.config
+        out = np.full((len(uv), 3), np.nan, np.float32)
+        if len(uv) == 0:
+            return out
+        z = self._depth_at(obs.depth_m, uv, cfg.depth_window_px)
+        ok = np.isfinite(z) & (z >= cfg.min_depth_m) & (z <= cfg.max_depth_m)
+        cloud = lift_pixels(
+            uv[ok, 0], uv[ok, 1], z[ok], obs.intrinsics, obs.pose, obs.camera_height_m, obs.camera_tilt_rad
+        )
+        high = cloud.xyz_run[:, 2] >= cfg.min_height_m
+        out[np.flatnonzero(ok)[high]] = cloud.xyz_run[high]
+        return out
+
     def add_matches(
         self, obs: Observation, goal_xy: np.ndarray, obs_xy: np.ndarray, goal_mask: np.ndarray, score: float
     ) -> np.ndarray:
@@ -135,13 +154,18 @@ class GoalLocaliser:
         return self._add(self.points_from_pixels(obs, uv, window_px=0), score, obs)
 
     def _add(self, xyz: np.ndarray, score: float, obs: Observation) -> np.ndarray:
+        return self.add_points(xyz, score, obs.step, (obs.pose.x_m, obs.pose.y_m))
+
+    def add_points(self, xyz: np.ndarray, score: float, frame: int, robot_xy_m: tuple[float, float]) -> np.ndarray:
+        """Add one view's goal points (N, 3) run frame, seen from ``robot_xy_m`` with ``score``, as
+        view ``frame`` (a step; the agent's memory of a home gives remembered keyframes negative
+        ids). Fewer than ``min_points_per_frame`` add nothing. Returns the points added."""
         if len(xyz) < self.config.min_points_per_frame:
             return np.zeros((0, 3), np.float32)
-        frame = obs.step
         # the distance to the seen surface (a robust nearest point), not to the points' centroid:
         # the centroid of a bed or couch lies a metre inside it, so a view from its edge would
         # count as a view from afar
-        dist = np.hypot(xyz[:, 0] - obs.pose.x_m, xyz[:, 1] - obs.pose.y_m)
+        dist = np.hypot(xyz[:, 0] - robot_xy_m[0], xyz[:, 1] - robot_xy_m[1])
         self._views[frame] = View(frame, float(score), float(np.quantile(dist, 0.1)), len(xyz))
         self._xyz = np.vstack([self._xyz, xyz.astype(np.float32)])
         self._score = np.concatenate([self._score, np.full(len(xyz), score, np.float32)])

@@ -32,6 +32,12 @@ the decision and the next state. Rejected and unreachable candidates are blackli
 (``GridMap.blacklist_cells``), so their points and later points there are ignored and
 exploration resumes.
 
+The memory of a home (``agent.memory.HomeMemory``, issue 31): an agent made with
+``home_memory=`` keeps the map across goals, offers every searching frame to the memory as a
+keyframe, and at ``reset`` scores the new goal against the remembered keyframes first, so that
+a goal seen before becomes a candidate before the first step. Without one (the default) each
+``reset`` starts from nothing, as in the paper.
+
 Oracle ablations are injected callables (the agent never imports sim/):
 ``oracle_reid(obs) -> bool`` (goal visible), ``oracle_ego_mask(obs) -> (H, W) bool``
 (ground-truth egocentric instance mask), ``goal_mask_fn(goal_image) -> (h, w) bool``.
@@ -54,6 +60,7 @@ from agent.events import Context, Event, event_facts
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
+from agent.memory import HomeMemory
 from agent.modes import Decision, Mode, PolicyState, RescanState
 from agent.motion import after_action, move_key
 from agent.planner import FMMPlanner, Plan, PlanError
@@ -83,7 +90,11 @@ class ModIINAgent:
         oracle_reid: OracleReID | None = None,
         oracle_ego_mask: OracleEgoMask | None = None,
         goal_mask_fn: GoalMaskFn | None = None,
+        home_memory: HomeMemory | None = None,
     ) -> None:
+        """``home_memory``: the memory of the home this agent works in (``agent.memory``); each
+        ``reset`` is then the next goal in that home. It may also be set (or changed) between
+        goals as the attribute ``home_memory``; None: every goal starts from nothing."""
         pc = config.policy
         if pc.reid_source == "oracle" and oracle_reid is None:
             raise ValueError("policy.reid_source 'oracle' needs an injected oracle_reid callable")
@@ -106,6 +117,7 @@ class ModIINAgent:
         self._decision: Decision | None = None
         self._goal_image: np.ndarray | None = None
         self._goal_mask: Pending | None = None
+        self.home_memory = home_memory
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -122,8 +134,14 @@ class ModIINAgent:
         return self._state.mode
 
     def reset(self, goal_image: np.ndarray) -> None:
+        """Start a goal: from nothing, or (with ``home_memory``) in the remembered map, with the
+        goal scored against the remembered keyframes before the first step."""
         self._goal_image = goal_image
-        self.grid = GridMap(self.config.mapping)
+        home = self.home_memory
+        if home is None:
+            self.grid = GridMap(self.config.mapping)
+        else:
+            self.grid = home.begin_goal(self.config.mapping, self.reid.matcher.name if self.reid is not None else None)
         self.explorer = FrontierExplorer(self.config.frontier)
         self.localiser = GoalLocaliser(self.config.localisation)
         self.memory = CandidateMemory()
@@ -140,6 +158,8 @@ class ModIINAgent:
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
         self._record = None
         self._decision = None
+        if home is not None:
+            self._recall(home)
 
     def act(self, obs: Observation) -> Action:
         if self._goal_image is None:
@@ -150,6 +170,8 @@ class ModIINAgent:
 
         # 1. mapping (with collision marks for forward moves that did not move the robot)
         t = time.perf_counter()
+        if self._prev_pose is None and self.home_memory is not None:
+            self.home_memory.check_start(obs.pose)
         if self._prev_pose is not None:
             assert self._prev_action is not None  # set with the pose
             self._set(motion=after_action(self._state.motion, self._prev_action))
@@ -204,6 +226,16 @@ class ModIINAgent:
             self.shortlist.offer(obs, result.gate_score if result.gate_score is not None else score)
         candidates = self._evaluate(self.localiser.candidates(self.grid, self.tau))
         timings["localisation"] = _ms(t)
+        if self.home_memory is not None and searching and result is not None and result.features is not None:
+            # a keyframe for later goals: the features just extracted, each keypoint's 3D point
+            t = time.perf_counter()
+            feats = result.features
+            assert self.reid is not None  # it made the features
+            points = self.localiser.keypoint_points(obs, feats.keypoints_xy)
+            self.home_memory.offer(
+                obs, feats, points, self.reid.matcher.name, self.config.localisation.min_points_per_frame
+            )
+            timings["memory"] = _ms(t)
 
         # 4. decision and planning
         t = time.perf_counter()
@@ -253,6 +285,8 @@ class ModIINAgent:
             candidates=self.memory.infos(live, robot_xy),
             candidate_id=cand.id if cand is not None else None,
         )
+        if self.home_memory is not None:
+            self.home_memory.note(self._record)
         return action
 
     # --- state ---------------------------------------------------------------------
@@ -271,6 +305,34 @@ class ModIINAgent:
             return self.localiser.add_mask_pixels(obs, np.asarray(self.oracle_ego_mask(obs), bool), score)
         assert result is not None and self.goal_mask is not None
         return self.localiser.add_matches(obs, result.goal_xy, result.obs_xy, self.goal_mask, score)
+
+    def _recall(self, home: HomeMemory) -> None:
+        """The new goal against the memory (``HomeMemory.localise``): remembered keyframes scoring
+        at least the potential-evidence threshold (tau without it) add goal points as a live frame
+        does, and the candidates they form are decided on like any. Such a candidate also skips the
+        look-around (``_decide`` looks around only while there is no candidate): the look-around
+        is there to find the goal near the start before committing to a frontier, and a
+        remembered candidate already says where to go; live frames on the way confirm or reject
+        it, and a rejection with look-around turns left resumes it. When memory gives nothing,
+        the goal starts with the look-around, as without memory."""
+        pc = self.config.policy
+        if (
+            self.reid is None
+            or self.tau is None
+            or pc.reid_source != "matcher"
+            or pc.localisation_source != "goal_mask"
+        ):
+            return
+        ratio = pc.potential_tau_ratio if pc.potential_tau_ratio < 1.0 else 1.0
+        mask = self._goal_mask
+        assert mask is not None  # goal_mask localisation has a segmenter
+        home.localise(
+            self.reid,
+            self.localiser,
+            mask.result,
+            top_k=self.config.memory.recall_keyframes,
+            min_score=ratio * self.tau,
+        )
 
     @property
     def goal_mask(self) -> np.ndarray | None:

@@ -203,6 +203,9 @@ class ReIDResult:
     # the exit stage's score (LighterGlue's head after the exit layer; None: not computed, the
     # first stage already stopped the frame or the stage is off)
     exit_score: float | None = None
+    # the frame's own keypoints and descriptors, as extracted for this comparison (None: not
+    # kept); the agent's memory of a home keeps them (``agent.memory``) without extracting twice
+    features: Features | None = None
 
 
 class ReIdentifier:
@@ -272,7 +275,8 @@ class ReIdentifier:
         def skipped(match_ms: float, exit_score: float | None = None) -> ReIDResult:
             # a frame the gate stopped (first stage, or LighterGlue's exit layer): score 0, no matches
             return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, match_ms, full_matcher=False,
-                              gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3, exit_score=exit_score)  # fmt: skip
+                              gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3, exit_score=exit_score,
+                              features=obs)  # fmt: skip
 
         if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
             return skipped(0.0)
@@ -297,4 +301,5 @@ class ReIdentifier:
             gate_score=gate_score,
             gate_ms=(t_gate - t1) * 1e3,
             exit_score=exit_score,
+            features=obs,
         )
