@@ -172,10 +172,11 @@ class SimOracle:
         return self._b.current_render().instance_ids
 
     def goal_mask(self) -> np.ndarray:
-        """(H, W) bool: pixels of the goal instance in the current observation (all False if unknown)."""
-        ids = self.instance_ids()
+        """(H, W) bool: pixels of the goal instance in the current observation (all False if unknown).
+        Read every step by the evaluation: a compare on the raw ids, no instance-id image."""
+        render = self._b.current_render()
         tid = self._b.goal_instance_id
-        return np.zeros(ids.shape, dtype=bool) if tid is None else ids == tid
+        return np.zeros(render.seg_raw.shape, dtype=bool) if tid is None else render.mask_of(tid)
 
 
 class SimBackend:

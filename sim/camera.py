@@ -4,6 +4,11 @@ PyBullet's ``computeProjectionMatrixFOV`` takes the *vertical* field of view; ou
 specs hold the horizontal one (as Habitat and the Stretch config do) and convert.
 The depth buffer is non-linear; ``depth_buffer_to_metres`` turns it into depth
 along the optical axis: ``far * near / (far - (far - near) * buf)``.
+
+A frame is converted once per render (issue 32): RGB out of PyBullet's RGBA with
+``cv2.cvtColor`` (a strided numpy copy costs 40 times more), depth in place in one float64
+array (no temporaries), and the segmentation kept raw: a goal mask compares raw ids
+(``Render.mask_of``), the whole instance-id image is built only for the readers that need it.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from agent.types import CAMERA_HEIGHT_M, CAMERA_HEIGHT_PX, CAMERA_HFOV_DEG, CAMERA_WIDTH_PX, Intrinsics
@@ -53,9 +59,10 @@ class Render:
 
     rgb:          (H, W, 3) uint8, R,G,B.
     depth_m:      (H, W) float32 metres along the optical axis; 0 where nothing was hit.
-    instance_ids: (H, W) int64 goal-instance id per pixel, -1 for anything else; computed on
+    instance_ids: (H, W) int32 goal-instance id per pixel, -1 for anything else; computed on
                   first use from the renderer's raw segmentation buffer, because only oracles,
-                  metrics and goal sampling read it (not the agent's step).
+                  metrics and goal sampling read it (not the agent's step). One instance's
+                  pixels: ``mask_of`` (no instance-id image).
     """
 
     rgb: np.ndarray
@@ -76,12 +83,38 @@ class Render:
             self._ids.append(ids)
         return self._ids[0]
 
+    def mask_of(self, instance_id: int) -> np.ndarray:
+        """(H, W) bool: the pixels of one instance, exactly ``instance_ids == instance_id``, from
+        the raw ids its bodies have (one per instance: a compare, not a look-up per pixel; the
+        evaluation counts the goal's pixels every step)."""
+        if self._ids or self.seg_lut is None or instance_id < 0:
+            return self.instance_ids == instance_id
+        raw = np.flatnonzero(self.seg_lut == instance_id) - 1  # raw ids the look-up maps to it
+        if len(raw) == 1:
+            return self.seg_raw == raw[0]
+        return np.isin(self.seg_raw, raw)
+
+    def copy(self) -> Render:
+        """The same frame in arrays of its own."""
+        return Render(self.rgb.copy(), self.depth_m.copy(), self.seg_raw.copy(), self.seg_lut)
+
+
+def rgba_to_rgb(rgba: np.ndarray) -> np.ndarray:
+    """(H, W, 4) uint8 -> (H, W, 3) uint8, contiguous, the alpha channel dropped."""
+    return cv2.cvtColor(np.ascontiguousarray(rgba, dtype=np.uint8), cv2.COLOR_RGBA2RGB)
+
 
 def depth_buffer_to_metres(buf: np.ndarray, near_m: float, far_m: float) -> np.ndarray:
-    """OpenGL depth buffer values in [0, 1] -> (H, W) float32 metres along the optical axis."""
-    buf = np.asarray(buf, dtype=np.float64)
-    depth = far_m * near_m / (far_m - (far_m - near_m) * buf)
-    depth[buf >= 1.0 - 1e-7] = 0.0  # background: no reading
+    """OpenGL depth buffer values in [0, 1] -> (H, W) float32 metres along the optical axis.
+
+    Computed in float64 in one working array, operation by operation as the formula reads
+    (the same values as with temporaries, without allocating five frame-sized arrays)."""
+    depth = np.array(buf, dtype=np.float64)  # a copy: the caller's buffer is left alone
+    background = depth >= 1.0 - 1e-7  # no reading
+    np.multiply(depth, far_m - near_m, out=depth)
+    np.subtract(far_m, depth, out=depth)
+    np.divide(far_m * near_m, depth, out=depth)
+    depth[background] = 0.0
     return depth.astype(np.float32)
 
 

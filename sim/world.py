@@ -15,6 +15,15 @@ Public contract (CONTRIBUTING.md):
 * ``.ray_objects(from_xyz, to_xyz)``: first object hit along rays (visibility tests).
 * ``.close()``: idempotent.
 
+A render draws only the rooms the camera can see (``sim.visibility``) and is reused when the
+same frame is asked for again (issue 32): the frame is a pure function of what PyBullet is
+given (the view and projection matrices, in float32 once they reach it, the image size and
+the set of bodies shown), so the last ``reuse_frames`` frames are kept under that key and a
+camera back at one of them gets a copy (an agent turning to and fro, or back where it was,
+asks for about 9% of its frames again in the recorded train10 runs). The segmentation buffer comes out of the same
+TinyRenderer pass at no measurable cost (it is rasterised whether asked for or not; leaving
+it out with ``ER_NO_SEGMENTATION_MASK`` only skips a copy), so it is always kept.
+
 Every furniture piece is one multi-link body: one link per material with a
 world-UV mesh (no collision), one collision-only link per convex part (for ray
 tests). Its segmentation id is therefore one id per instance.
@@ -25,14 +34,14 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import defaultdict
+from collections import OrderedDict, defaultdict
 
 import numpy as np
 import pybullet as pb
 
 from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, Pose2D, wrap_angle
 from sim import meshes
-from sim.camera import SIM_CAMERA, CameraSpec, Render, camera_axes, depth_buffer_to_metres
+from sim.camera import SIM_CAMERA, CameraSpec, Render, camera_axes, depth_buffer_to_metres, rgba_to_rgb
 from sim.geometry import FootprintIndex, NavGrid
 from sim.home import FOLIAGE_JITTER, HomeSpec, Part, SceneObject
 from sim.scene_gen import generate_home
@@ -51,6 +60,9 @@ _LIGHT = dict(
     lightDiffuseCoeff=0.5,
     lightSpecularCoeff=0.02,
 )
+# frames kept for a camera that comes back (about 2.5 MB each at 360 x 640): in recorded agent
+# runs the share of frames found again grows up to 16 kept frames and no further
+REUSE_FRAMES = 16
 
 
 def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
@@ -80,8 +92,9 @@ def _part_mesh(part: Part, tile_m: float) -> meshes.Mesh:
 class SimWorld:
     """A built home. Not thread-safe; one PyBullet client per world."""
 
-    def __init__(self, home: HomeSpec, cull: bool = True) -> None:
-        """cull: skip drawing rooms the camera cannot see (identical images, faster renders)."""
+    def __init__(self, home: HomeSpec, cull: bool = True, reuse_frames: int = REUSE_FRAMES) -> None:
+        """cull: skip drawing rooms the camera cannot see (identical images, faster renders).
+        reuse_frames: how many recent frames to keep for a camera that comes back (0: none)."""
         t0 = time.perf_counter()
         self.home = home
         self._client = pb.connect(pb.DIRECT)  # visual meshes: rendering
@@ -92,6 +105,11 @@ class SimWorld:
         self._links: dict[int, int] = {}
         self._shown: dict[int, bool] = {}
         self._culler: ViewCuller | None = None
+        self.reuse_frames = reuse_frames
+        # (camera, view matrix, visible rooms) -> the frame, read-only, most recent last
+        self._frames: OrderedDict[tuple, Render] = OrderedDict()
+        self._projections: dict[CameraSpec, tuple[float, ...]] = {}
+        self.frames_reused = 0
         self._textures: dict[str, int] = {}
         self.body_to_object: dict[int, int] = {}
         self.object_to_body: dict[int, int] = {}
@@ -248,18 +266,23 @@ class SimWorld:
             self._ray_body_to_object[ray_body] = obj.object_id
             self._cull_groups.append((frozenset([obj.room_index]), body))
 
-    def _cull(self, eye_xy: tuple[float, float], yaw_rad: float, pitch_rad: float, camera: CameraSpec) -> None:
-        """Hide the bodies of rooms the camera cannot see (``sim.visibility``): TinyRenderer
-        rasterises every front-facing triangle in view, hidden or not."""
+    def _visible(
+        self, eye_xy: tuple[float, float], yaw_rad: float, pitch_rad: float, camera: CameraSpec
+    ) -> frozenset[int] | None:
+        """The rooms the camera can see (``sim.visibility``); None: draw everything (culling
+        off, or the camera outside every room)."""
         if not self.cull:
-            return
+            return None
         if self._culler is None:
             self._culler = ViewCuller(self.home)
-        visible: set[int] | None = self._culler.visible_rooms(
+        visible = self._culler.visible_rooms(
             eye_xy, yaw_rad, pitch_rad, camera.hfov_deg, camera.vfov_deg, camera.width_px
         )
-        if not visible:
-            visible = None  # outside every room: draw everything
+        return frozenset(visible) if visible else None
+
+    def _show(self, visible: frozenset[int] | None) -> None:
+        """Hide the bodies of rooms outside ``visible``, show the others: TinyRenderer
+        rasterises every front-facing triangle in view, hidden or not."""
         for rooms, body in self._cull_groups:
             show = visible is None or not rooms or bool(rooms & visible)
             if self._shown.get(body, True) != show:
@@ -268,6 +291,48 @@ class SimWorld:
                         body, link, rgbaColor=[1, 1, 1, 1 if show else 0], physicsClientId=self._client
                     )
                 self._shown[body] = show
+
+    def _projection(self, camera: CameraSpec) -> tuple[float, ...]:
+        """PyBullet's projection matrix of a camera (the same every frame: computed once)."""
+        proj = self._projections.get(camera)
+        if proj is None:
+            proj = tuple(
+                pb.computeProjectionMatrixFOV(
+                    camera.vfov_deg,
+                    camera.width_px / camera.height_px,
+                    camera.near_m,
+                    camera.far_m,
+                    physicsClientId=self._client,
+                )
+            )
+            self._projections[camera] = proj
+        return proj
+
+    def _view(self, eye: np.ndarray, yaw_rad: float, pitch_rad: float) -> tuple[float, ...]:
+        """PyBullet's view matrix (float32 values: what the renderer is given)."""
+        forward, up = camera_axes(yaw_rad, pitch_rad)
+        return tuple(
+            pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=self._client)
+        )
+
+    def _raster(self, camera: CameraSpec, view: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """TinyRenderer's buffers: (H, W, 4) uint8 RGBA, (H, W) float32 depth buffer, (H, W)
+        int32 body ids."""
+        w, h, rgba, depth, seg = pb.getCameraImage(
+            camera.width_px,
+            camera.height_px,
+            list(view),
+            list(self._projection(camera)),
+            renderer=pb.ER_TINY_RENDERER,
+            shadow=0,
+            physicsClientId=self._client,
+            **_LIGHT,
+        )
+        return (
+            np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4),
+            np.asarray(depth, dtype=np.float32).reshape(h, w),
+            np.asarray(seg).reshape(h, w),
+        )
 
     # --- queries ---------------------------------------------------------------
 
@@ -334,31 +399,30 @@ class SimWorld:
     def render_view(
         self, eye_xyz: tuple[float, float, float] | np.ndarray, yaw_rad: float, pitch_rad: float, camera: CameraSpec
     ) -> Render:
-        """Render from any camera pose (yaw CCW from +x, pitch positive down)."""
+        """Render from any camera pose (yaw CCW from +x, pitch positive down). The arrays are
+        the caller's own."""
         eye = np.asarray(eye_xyz, dtype=np.float64)
-        self._cull((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera)
-        forward, up = camera_axes(yaw_rad, pitch_rad)
-        view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=self._client)
-        proj = pb.computeProjectionMatrixFOV(
-            camera.vfov_deg,
-            camera.width_px / camera.height_px,
-            camera.near_m,
-            camera.far_m,
-            physicsClientId=self._client,
+        visible = self._visible((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera)
+        view = self._view(eye, yaw_rad, pitch_rad)
+        key = (camera, view, visible)
+        kept = self._frames.get(key)
+        if kept is not None:
+            self._frames.move_to_end(key)
+            self.frames_reused += 1
+            return kept.copy()
+        self._show(visible)
+        rgba, depth_buf, seg = self._raster(camera, view)
+        frame = Render(
+            rgba_to_rgb(rgba), depth_buffer_to_metres(depth_buf, camera.near_m, camera.far_m), seg, self._seg_lut
         )
-        w, h, rgba, depth, seg = pb.getCameraImage(
-            camera.width_px,
-            camera.height_px,
-            view,
-            proj,
-            renderer=pb.ER_TINY_RENDERER,
-            shadow=0,
-            physicsClientId=self._client,
-            **_LIGHT,
-        )
-        rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
-        depth_m = depth_buffer_to_metres(np.asarray(depth, dtype=np.float32).reshape(h, w), camera.near_m, camera.far_m)
-        return Render(rgb, depth_m, np.asarray(seg).reshape(h, w), self._seg_lut)
+        if self.reuse_frames > 0:
+            kept = frame.copy()
+            for a in (kept.rgb, kept.depth_m, kept.seg_raw):
+                a.flags.writeable = False
+            self._frames[key] = kept
+            while len(self._frames) > self.reuse_frames:
+                self._frames.popitem(last=False)
+        return frame
 
     def render(self, pose_world: Pose2D, camera: CameraSpec = SIM_CAMERA) -> Render:
         """The robot's camera at a floor pose."""
@@ -366,6 +430,7 @@ class SimWorld:
         return self.render_view(eye, pose_world.yaw_rad, camera.pitch_rad, camera)
 
     def close(self) -> None:
+        self._frames.clear()
         for name in ("_client", "_ray_client"):
             client = getattr(self, name, -1)
             if client is not None and client >= 0:
