@@ -34,7 +34,8 @@ than ``frame_check_m`` is logged as a warning.
 How a goal uses it (``agent.policy.ModIINAgent``, made with ``home_memory=``): at ``reset`` the
 new goal's features are scored against every keyframe with the cheap gate (the mutual-nearest
 descriptor count, ``agent.reid.gate.MNNGate``), the best ``recall_keyframes`` of them with the
-full matcher (``recall``), and each keyframe scoring at least the potential-evidence threshold
+matcher (``recall``; stopped after its exit layer below the exit stage's threshold, as a live
+searching frame is), and each keyframe scoring at least the potential-evidence threshold
 adds its matches on the goal-image mask as goal points with that score, as a live frame does.
 The policy then runs unchanged: candidates form from those points, a remembered detection (at
 tau) is a confirmed candidate, a weaker one a potential candidate verified by approach, and the
@@ -407,11 +408,14 @@ class HomeMemory:
         gate_threshold: float | None,
         top_k: int,
         min_score: float,
+        exit_threshold: float | None = None,
     ) -> Recall:
         """Score a goal against every keyframe: the gate's mutual-nearest count (``min_cosine``)
-        for all, the full ``matcher`` on the ``top_k`` with the highest counts (at least
-        ``gate_threshold``, when there is one: the threshold the live frames face), and the
-        recollections: those scoring at least ``min_score``."""
+        for all, the ``matcher`` on the ``top_k`` with the highest counts (at least
+        ``gate_threshold``, when there is one), stopped after its exit layer when the exit stage's
+        score is below ``exit_threshold`` (None: every layer; a matcher without an exit layer runs
+        them all): the two stages of the gate the live searching frames face (agent/reid/gate.py).
+        The recollections: those scoring at least ``min_score``."""
         kfs = list(self._keyframes.values())
         t0 = time.perf_counter()
         if not kfs or len(goal) == 0:
@@ -425,11 +429,15 @@ class HomeMemory:
         passed = [i for i in order if gate_threshold is None or counts[i] >= gate_threshold]
         t1 = time.perf_counter()
         scored, kept = [], []
+        exit_on = exit_threshold is not None and bool(getattr(matcher, "exit_layer", 0))
         for i in passed[: max(0, top_k)]:
             kf = kfs[i]
             obs = kf.features()
-            m = matcher.match(goal, obs)
-            s = score(m, score_kind)
+            if exit_on:
+                m = matcher.match(goal, obs, exit_below=(score_kind, exit_threshold))  # type: ignore[call-arg]
+            else:
+                m = matcher.match(goal, obs)
+            s = score(m, score_kind)  # 0 when it stopped at the exit layer (no matches)
             scored.append((kf.id, float(counts[i]), s))
             if s >= min_score and len(m):
                 kept.append(
@@ -447,8 +455,8 @@ class HomeMemory:
         top_k: int,
         min_score: float,
     ) -> Recall:
-        """The goal of ``reid`` (set) against the memory (``recall``, with the gate's threshold and
-        score of ``reid``): each recollection's matches on the goal mask (``goal_mask()``, called
+        """The goal of ``reid`` (set) against the memory (``recall``, with the gate's thresholds and
+        the score of ``reid``): each recollection's matches on the goal mask (``goal_mask()``, called
         only when some keyframe reached ``min_score``) become goal points in ``localiser``, with
         its score, as the view ``Keyframe.frame_id`` taken from the keyframe's pose. Noted in the
         goal's summary and logged."""
@@ -461,6 +469,7 @@ class HomeMemory:
             score_kind=reid.config.score,
             min_cosine=reid.config.gate_min_cosine,
             gate_threshold=reid.gate_threshold,
+            exit_threshold=reid.exit_threshold,
             top_k=top_k,
             min_score=min_score,
         )

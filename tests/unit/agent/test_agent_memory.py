@@ -22,7 +22,7 @@ from agent.memory import HomeMemory, InHomeFrame, MemoryConfig
 from agent.modes import Mode
 from agent.policy import ModIINAgent
 from agent.projection import project_points
-from agent.reid import Features, Matches, ReIDConfig, ReIdentifier
+from agent.reid import Features, Matches, ReIDConfig, ReIdentifier, make_matcher
 from agent.segmentation import SegmentationConfig
 from agent.types import Action, AgentRecord, Intrinsics, Observation, Pose2D
 from tests.helpers.agent_scenes import BoxWorld, obs_and_ids, observation, room_walls
@@ -293,6 +293,28 @@ def test_a_remembered_frame_scores_as_the_live_frame_did(matcher):
     # bottom) none
     has = np.isfinite(r.points_xyz).all(axis=1)
     assert 0.5 < has.mean() < 1.0 and (r.points_xyz[has, 0] == pytest.approx(2.0))
+
+
+def test_the_recall_stops_an_unrelated_keyframe_at_the_exit_layer_and_scores_a_matching_one_in_full():
+    """With LighterGlue's exit stage (the gate's second stage) a keyframe of another scene stops
+    after the exit layer and scores 0; the keyframe of the goal scores exactly as without it."""
+    goal = cv2.resize(skimage.data.astronaut(), (512, 512))
+    same = cv2.resize(goal[60:460, 100:330], (360, 640))
+    other = cv2.resize(skimage.data.coffee(), (360, 640))
+    matcher = make_matcher(ReIDConfig(num_threads=1))  # the default: the exit stage after layer 2
+    assert getattr(matcher, "exit_layer", 0) == 2
+    k = Intrinsics.from_hfov(360, 640, 42.0)
+    mem = HomeMemory()
+    mem.begin_goal(AgentConfig().mapping)
+    for i, img in enumerate((same, other)):
+        obs = Observation(img, np.full((640, 360), 2.0, np.float32), Pose2D(3.0 * i, 0.0, 0.0), k, goal, step=i)
+        f = matcher.extract(img, 1024)
+        mem.offer(obs, f, GoalLocaliser().keypoint_points(obs, f.keypoints_xy), matcher.name)
+    g = matcher.extract(goal, 1024)
+    kw = dict(score_kind="conf", min_cosine=0.82, gate_threshold=None, top_k=8, min_score=1.0)
+    full = {kid: s for kid, _, s in mem.recall(g, matcher, **kw).scored}  # type: ignore[arg-type]
+    gated = {kid: s for kid, _, s in mem.recall(g, matcher, exit_threshold=5.0, **kw).scored}  # type: ignore[arg-type]
+    assert full[0] > 20 and full[1] < 5 and gated == {0: full[0], 1: 0.0}
 
 
 # --- the agent across goals --------------------------------------------------------------------
