@@ -1,9 +1,25 @@
-"""Evaluation throughput: local worker processes against Ray on the same machine, and the
-hours 1,000 episodes would take on N such machines.
+"""Evaluation throughput: the runner's scheduling before and after issue 32, or local worker
+processes against Ray on the same machine and the hours 1,000 episodes would take on N such
+machines.
 
-    .venv/bin/python benchmarks/bench_eval_scaling.py [--episodes DIR] [--limit 20] [--agent modiin] [--cpus 2]
+    .venv/bin/python benchmarks/bench_eval_scaling.py --episodes data/episodes/val30 --limit 8 --agent oracle
+    .venv/bin/python benchmarks/bench_eval_scaling.py --compare ray [--episodes DIR] [--limit 20] [--agent modiin]
 
-On the same first ``--limit`` episodes, back to back: ``imgnav eval --workers CPUS`` and
+``--compare schedule`` (the default): on the same first ``--limit`` episodes, back to back,
+``imgnav eval --workers CPUS`` with the old scheduling (whole homes, most episodes first, the
+set's order otherwise: ``schedule.OLD_POLICY``) and with the current one (episodes handed out
+as workers become free, homes longest first, a large home split across workers). Prints, from
+each run's ``summary.json`` ``throughput``: wall time, CPU time of the processes, episodes per
+CPU-hour, per wall-hour and per core-hour (CPUS x wall), the workers' busy share (episode wall
+time over CPUS x wall), home builds, worker start-up and the idle tail; and whether the records
+are identical apart from timings. Then both policies replayed on CPUS idle cores from the CPU
+seconds the current run recorded (each episode's ``cpu_s``, each home's
+``scene_build_cpu_s``; ``schedule.replay``): on a shared, loaded machine a worker left alone
+runs faster, so measured wall times understate what an idle tail costs, and the replay shows
+the scheduling alone. With ``--agent oracle`` (cheap) the figures show the scheduling, not the
+agent; ``--repeat R`` alternates the order over R rounds.
+
+``--compare ray``: on the same first ``--limit`` episodes, back to back: ``imgnav eval --workers CPUS`` and
 ``imgnav eval --ray local --workers CPUS`` (Ray started here with CPUS CPUs; its start-up is
 timed on its own; ``--repeat R`` alternates the order over R rounds and averages). Prints
 episodes per hour of each, the ratio ray/local (target >= 0.9),
@@ -31,10 +47,12 @@ SAME_FIELDS = ("success", "spl", "ne", "steps", "path_length_m", "stop_reason", 
 
 
 def _eval(
-    ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str], ray_options=None
-) -> tuple[float, list[dict]]:
+    ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str], ray_options=None, policy=None
+) -> tuple[float, list[dict], dict]:
+    """One ``imgnav eval`` run: its wall seconds, records and summary."""
     from sim.evaluation.cli import add_arguments
     from sim.evaluation.runner import read_records, run_evaluation
+    from sim.evaluation.schedule import DEFAULT_POLICY
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
@@ -42,12 +60,126 @@ def _eval(
         ["--episodes", ep_dir, "--agent", agent, "--out", str(out), "--workers", str(cpus), *extra]
     )
     t0 = time.perf_counter()
-    run_evaluation(ep_dir, agent, args, out, limit=limit, workers=cpus, progress=False, ray=ray_options)
-    return time.perf_counter() - t0, read_records(out)
+    summary = run_evaluation(
+        ep_dir,
+        agent,
+        args,
+        out,
+        limit=limit,
+        workers=cpus,
+        progress=False,
+        ray=ray_options,
+        policy=policy or DEFAULT_POLICY,
+    )
+    return time.perf_counter() - t0, read_records(out), summary
+
+
+THROUGHPUT_ROWS = (
+    ("wall (s)", "wall_s", "{:.1f}"),
+    ("CPU of the processes (s)", "cpu_s", "{:.1f}"),
+    ("episodes' own wall (s)", "episode_wall_s", "{:.1f}"),
+    ("episodes per CPU-hour", "episodes_per_cpu_hour", "{:.1f}"),
+    ("episodes per wall-hour", "episodes_per_wall_hour", "{:.1f}"),
+    ("episodes per core-hour", "episodes_per_core_hour", "{:.1f}"),
+    ("busy share", "busy_share", "{:.3f}"),
+    ("home builds", "scene_builds", "{:.0f}"),
+    ("home build (s, summed)", "scene_build_s", "{:.1f}"),
+    ("worker start-up (s, summed)", "worker_start_s", "{:.1f}"),
+    ("idle tail (s, summed over workers)", "tail_idle_s", "{:.1f}"),
+)
+
+
+def _mean(xs: list) -> float:
+    xs = [float(x) for x in xs if x is not None]
+    return sum(xs) / len(xs) if xs else float("nan")
+
+
+def compare_schedules(args: argparse.Namespace, ep_dir: str, runs: Path, extra: list[str]) -> dict:
+    """Old and current scheduling back to back (module docstring); prints the table, returns the figures."""
+    from sim.evaluation.compare import identical
+    from sim.evaluation.schedule import DEFAULT_POLICY, OLD_POLICY
+
+    policies = {"before": OLD_POLICY, "after": DEFAULT_POLICY}
+    results: dict[str, list[dict]] = {"before": [], "after": []}
+    for r in range(args.repeat):
+        order = ["before", "after"] if r % 2 == 0 else ["after", "before"]
+        for name in order:
+            _, _, summary = _eval(
+                ep_dir, args.agent, args.cpus, args.limit, runs / f"{name}{r}", extra, policy=policies[name]
+            )
+            results[name].append(summary["throughput"])
+    same, diffs = identical(str(runs / "before0"), str(runs / "after0"))
+    fig = {
+        name: {key: _mean([t.get(key) for t in ts]) for _, key, _ in THROUGHPUT_ROWS} for name, ts in results.items()
+    }
+    n = results["after"][0]["episodes"]
+    print(
+        f"{args.agent} {args.eval_args} on {n} episodes of {ep_dir}, --workers {args.cpus}, old and current "
+        f"scheduling back to back, {args.repeat} round(s) in alternating order (means)"
+    )
+    print("| figure | before (whole homes, most episodes first) | after (longest first, homes split) |")
+    print("| --- | ---: | ---: |")
+    for label, key, fmt in THROUGHPUT_ROWS:
+        print(f"| {label} | {fmt.format(fig['before'][key])} | {fmt.format(fig['after'][key])} |")
+    print(f"records identical apart from timings: {same - len({d.split(':')[0] for d in diffs})}/{same}")
+    for d in diffs[:5]:
+        print("  ", d)
+    replayed = replay_schedules(ep_dir, args.limit, runs / "after0", args.cpus)
+    print(f"\nreplayed on {args.cpus} idle cores from the recorded CPU seconds (start-up left out):")
+    print("| figure | before | after |")
+    print("| --- | ---: | ---: |")
+    for key, fmt in (
+        ("makespan_s", "{:.1f}"),
+        ("units_per_core_hour", "{:.1f}"),
+        ("busy_share", "{:.3f}"),
+        ("scene_builds", "{:.0f}"),
+        ("tail_idle_s", "{:.1f}"),
+    ):
+        print(f"| {key} | {fmt.format(replayed['before'][key])} | {fmt.format(replayed['after'][key])} |")
+    return {
+        "compare": "schedule",
+        "agent": args.agent,
+        "eval_args": args.eval_args,
+        "episodes": n,
+        "episode_set": ep_dir,
+        "cpus": args.cpus,
+        "repeat": args.repeat,
+        "before": fig["before"],
+        "after": fig["after"],
+        "records_identical": f"{same - len({d.split(':')[0] for d in diffs})}/{same}",
+        "replayed_on_idle_cores": replayed,
+    }
+
+
+def replay_schedules(ep_dir: str, limit: int, run: Path, cpus: int) -> dict[str, dict]:
+    """Old and current scheduling replayed from one run's recorded CPU seconds."""
+    import statistics
+
+    from sim.evaluation.runner import read_records
+    from sim.evaluation.schedule import DEFAULT_POLICY, OLD_POLICY, replay, units_of
+    from sim.sequences import load_any_set
+
+    records = read_records(run)
+    units = units_of(load_any_set(ep_dir).episodes[:limit])
+    unit_s = {r["episode_id"]: float(r["timing"]["cpu_s"]) for r in records}
+    builds: dict[int, list[float]] = {}
+    for r in records:
+        builds.setdefault(r["scene_seed"], []).append(float(r["timing"]["scene_build_cpu_s"]))
+    build_s = {seed: statistics.median(xs) for seed, xs in builds.items()}
+    return {
+        "before": replay(units, unit_s, build_s, cpus, OLD_POLICY),
+        "after": replay(units, unit_s, build_s, cpus, DEFAULT_POLICY),
+    }
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--compare",
+        choices=["schedule", "ray"],
+        default="schedule",
+        help="schedule: the runner's old and current scheduling; ray: local workers against Ray",
+    )
     p.add_argument("--episodes", default=None, help="val episode set (default: generate --limit episodes)")
     p.add_argument("--limit", type=int, default=20)
     p.add_argument("--agent", default="modiin")
@@ -55,16 +187,14 @@ def main() -> int:
     p.add_argument("--machines", type=int, nargs="+", default=[1, 2, 5, 10, 25, 50])
     p.add_argument("--json", default=None, help="also write the figures to this file")
     p.add_argument("--eval-args", default="", help='more `imgnav eval` flags, e.g. "--modiin-set reid.gate=true"')
-    p.add_argument("--repeat", type=int, default=1, help="rounds (the order alternates: local first, then ray first)")
+    p.add_argument(
+        "--repeat", type=int, default=1, help="rounds (the order alternates: before/local first, then after/ray first)"
+    )
     p.add_argument(
         "--keep", default=None, help="write the two runs' outputs under this directory (default: a temp dir)"
     )
     args = p.parse_args()
     logging.basicConfig(level=logging.WARNING)
-
-    import ray
-
-    from sim.evaluation.ray_backend import RayOptions, connect
 
     tmp = tempfile.TemporaryDirectory()
     ep_dir = args.episodes
@@ -80,9 +210,22 @@ def main() -> int:
     runs = Path(args.keep) if args.keep else Path(tmp.name)
     if runs.exists() and any(runs.glob("*/episodes.jsonl")):
         raise SystemExit(f"{runs} holds earlier runs; use another --keep")
+    if args.compare == "schedule":
+        fig = compare_schedules(args, ep_dir, runs, extra)
+        if args.json:
+            Path(args.json).write_text(json.dumps(fig, indent=1) + "\n")
+        tmp.cleanup()
+        return 0
+
+    import ray
+
+    from sim.evaluation.ray_backend import RayOptions, connect
+
+    summaries: dict[str, list[dict]] = {"local": [], "ray": []}
 
     def local_run(r: int) -> tuple[float, list[dict], float]:
-        wall, recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"local{r}", extra)
+        wall, recs, summary = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"local{r}", extra)
+        summaries["local"].append(summary)
         return wall, recs, 0.0
 
     def ray_run(r: int) -> tuple[float, list[dict], float]:
@@ -91,9 +234,10 @@ def main() -> int:
         connect(options)  # as `imgnav eval --ray local` starts it; the run below reuses it
         startup = time.perf_counter() - t0
         try:
-            wall, recs = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"ray{r}", extra, options)
+            wall, recs, summary = _eval(ep_dir, args.agent, args.cpus, args.limit, runs / f"ray{r}", extra, options)
         finally:
             ray.shutdown()
+        summaries["ray"].append(summary)
         return wall, recs, startup
 
     # back to back; with --repeat the order alternates so a drifting machine load favours neither
@@ -137,6 +281,10 @@ def main() -> int:
         "ratio_with_startup": round(eph_ray_startup / eph_local, 3),
         "records_identical": f"{same}/{total}",
         "cpu_s_per_episode": round(cost_cpu_s, 1),
+        "episodes_per_cpu_hour": {
+            k: _mean([s["throughput"]["episodes_per_cpu_hour"] for s in v]) for k, v in summaries.items()
+        },
+        "busy_share": {k: _mean([s["throughput"]["busy_share"] for s in v]) for k, v in summaries.items()},
         "hours_for_1000_episodes": {str(m): round(h, 2) for m, h in hours.items()},
     }
     print(
@@ -152,6 +300,12 @@ def main() -> int:
         f"ratio ray/local {eph_ray / eph_local:.3f} (with start-up {eph_ray_startup / eph_local:.3f}); "
         f"Ray start-up {', '.join(f'{x[2]:.2f}' for x in results['ray'])} s; "
         f"records equal to the first local run's (metrics, steps, stop reason): {same}/{total}"
+    )
+    print(
+        "episodes per CPU-hour (local: the processes' CPU; ray: the episodes' own): "
+        + ", ".join(f"{k} {v:.1f}" for k, v in fig["episodes_per_cpu_hour"].items())
+        + "; busy share: "
+        + ", ".join(f"{k} {v:.3f}" for k, v in fig["busy_share"].items())
     )
     print(f"cost {cost_cpu_s:.1f} CPU-s per episode; 1,000 episodes on N machines of {args.cpus} cores:")
     print("| N | hours |")

@@ -26,7 +26,9 @@ actions (a change meant to leave the agent's decisions alone should say "all").
 ``--identical`` checks a change meant to leave the agent alone (a refactoring): on the episodes
 both runs have, every field of each record must be equal, apart from timings (``timing``,
 ``modiin.median_ms``) and the fields named with ``--ignore`` (dotted paths, e.g.
-``agent_config``); it lists every other difference and exits 1 when there is one.
+``agent_config``; a path also names that field in the items of a list, such as a multi-goal
+record's subtasks: ``timing`` leaves out ``subtasks[2].timing``); it lists every other
+difference and exits 1 when there is one.
 """
 
 from __future__ import annotations
@@ -224,16 +226,23 @@ def cost(records: Sequence[Mapping[str, Any]]) -> dict[str, float]:
 TIMING_FIELDS = ("timing", "modiin.median_ms")
 
 
+def _ignored(path: str, ignore: Sequence[str]) -> bool:
+    """Whether ``path`` is in ``ignore``, itself or from inside a list item (``subtasks[0].timing``
+    is ``timing`` within its item)."""
+    return path in ignore or ("]." in path and path.rsplit("].", 1)[1] in ignore)
+
+
 def record_differences(a: Any, b: Any, ignore: Sequence[str] = (), path: str = "") -> list[str]:
-    """Dotted paths where two records differ (``ignore``: paths left out, with their subtrees;
-    a key only one side has is a difference, listed as ``path (only in the first/second)``)."""
-    if path in ignore:
+    """Dotted paths where two records differ (``ignore``: paths left out, with their subtrees,
+    also inside list items; a key only one side has is a difference, listed as ``path (only in
+    the first/second)``)."""
+    if _ignored(path, ignore):
         return []
     if isinstance(a, Mapping) and isinstance(b, Mapping):
         out = []
         for k in sorted(set(a) | set(b), key=str):
             sub = f"{path}.{k}" if path else str(k)
-            if sub in ignore:
+            if _ignored(sub, ignore):
                 continue
             if k not in b:
                 out.append(f"{sub} (only in the first)")

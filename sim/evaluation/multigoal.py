@@ -20,7 +20,9 @@ timings, the agent observer's fields such as ``failure_cause`` and ``modiin``) a
 index, kind (new, repeat, look-alike), instance and start pose. ``summary.json``
 (``summarize_sequences``): the figures over all subtasks, the first goal against the later
 ones, per goal index and kind, and the sequences, SR and SPL with 95% intervals from a
-bootstrap over homes.
+bootstrap over homes; its ``throughput`` (``schedule.throughput``) is given per sequence and per
+subtask. The runner hands sequences to workers as it hands out episodes (``runner._run_unit``),
+a sequence's estimated cost being the sum over its goals.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import argparse
 import logging
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,7 +42,7 @@ from agent.types import MAX_STEPS, Agent, Pose2D
 from sim.backend import GoalScoring, SimBackend
 from sim.episodes import r4, read_rgb
 from sim.evaluation.cli import realism_of
-from sim.evaluation.registry import AgentSpec, get_spec
+from sim.evaluation.registry import AgentSpec
 from sim.evaluation.runner import run_on_backend
 from sim.metrics import aggregate, bootstrap_ci
 from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field
@@ -152,7 +154,7 @@ def run_sequence(
 ) -> dict[str, Any]:
     """Run every goal of ``seq`` in an already built world, each from where the last ended;
     returns the sequence's record (module docstring). goal_images: one per goal, arrays or PNG paths."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     budget = subtask_budget(args)
     pose = seq.start_pose_world
     agent: Agent | None = None
@@ -209,34 +211,13 @@ def run_sequence(
         **{k: v for k, v in shared.items() if k not in ("episode_id", "scene_seed", "agent")},
         "timing": {
             "wall_s": r4(time.perf_counter() - t0),
+            "cpu_s": r4(time.process_time() - c0),
             "agent_ms_per_step": per_step("agent_ms_per_step"),
             "sim_ms_per_step": per_step("sim_ms_per_step"),
         },
         "subtasks": subtasks,
     }
     return record
-
-
-def run_sequence_scene(
-    sequences: list[SequenceEpisode],
-    goal_images: Sequence[Sequence[np.ndarray | str | Path]],
-    agent: str,
-    args: argparse.Namespace,
-    fail_fast: bool = False,
-) -> Iterator[dict[str, Any]]:
-    """Run sequences of one home (built once) in order, yielding each record as it finishes
-    (the work unit of local and worker-process evaluation, as ``runner.run_scene``)."""
-    spec = get_spec(agent)
-    t0 = time.perf_counter()
-    world = SimWorld.from_seed(sequences[0].scene_seed)
-    build_s = time.perf_counter() - t0
-    try:
-        for seq, images in zip(sequences, goal_images, strict=True):
-            rec = run_sequence(world, seq, images, spec, args, fail_fast)
-            rec["timing"]["scene_build_s"] = r4(build_s)
-            yield rec
-    finally:
-        world.close()
 
 
 # --- summary ---------------------------------------------------------------------------------

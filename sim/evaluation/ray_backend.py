@@ -1,7 +1,8 @@
 """Evaluation across machines on Ray (``imgnav eval --ray ADDRESS``, docs/architecture.md section 9).
 
-The work unit is the same as for local worker processes: one home's episodes
-(``runner.run_scene`` builds the home once). Each unit is a Ray task with
+The work unit is one home's episodes (``runner.run_scene`` builds the home once), homes
+longest first in the runner's order (local workers instead take one episode at a time and
+may share a large home: ``sim.evaluation.schedule``). Each unit is a Ray task with
 ``num_cpus=1`` and one torch thread, written as a Ray generator so every episode record
 streams back to the driver as soon as it finishes; the driver appends it to
 ``OUT/episodes.jsonl`` through the same ``write`` as the local runner, so records, progress
@@ -204,21 +205,24 @@ def run_scenes_on_ray(
     fail_fast: bool,
     write: Callable[[dict[str, Any]], None],
     is_done: Callable[[str], bool],
-) -> None:
-    """Run the scene groups (lists of episode ids, one home each) as Ray tasks, calling
-    ``write(record)`` on the driver for each finished episode (at most once per id)."""
+) -> int:
+    """Run the scene groups (lists of episode ids, one home each) as Ray tasks in the order
+    given (the runner's: homes longest first), calling ``write(record)`` on the driver for each
+    finished episode (at most once per id). Returns the most CPUs the cluster had (0: no task)."""
     ray = import_ray()
     args = _one_thread(args)
-    todo = deque(_Scene([es.by_id(i) for i in ids]) for ids in sorted(groups, key=len, reverse=True))
+    todo = deque(_Scene([es.by_id(i) for i in ids]) for ids in groups)
     if not todo:
-        return
+        return 0
     disconnect = connect(options)
+    most_cpus = 0
     task = ray.remote(num_cpus=1, max_retries=0)(scene_task)  # retries are ours: only unrecorded episodes
     in_flight: dict[Any, _Scene] = {}
     n_tasks = n_lost = n_failed = 0
     try:
         while todo or in_flight:
             cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            most_cpus = max(most_cpus, cpus)
             limit = options.max_in_flight or 2 * cpus
             while todo and len(in_flight) < limit:
                 scene = todo.popleft()
@@ -294,6 +298,7 @@ def run_scenes_on_ray(
     log.info(
         "ray: %d task(s), %d lost and retried or given up, %d episode(s) recorded as errors", n_tasks, n_lost, n_failed
     )
+    return most_cpus
 
 
 def _emit(rec: dict[str, Any], write: Callable[[dict[str, Any]], None], options: RayOptions) -> None:

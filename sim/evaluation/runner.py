@@ -2,15 +2,30 @@
 
 Outputs (``OUT``)::
 
-    OUT/episodes.jsonl   one JSON record per finished episode (appended as they finish)
-    OUT/summary.json     sr, spl, ne, max_st, episodes, per_category, errors, timing, agent extras
+    OUT/episodes.jsonl   one JSON record per finished episode (appended as they finish, so
+                         their order depends on the workers; nothing reads it by position)
+    OUT/summary.json     sr, spl, ne, max_st, episodes, per_category, errors, timing,
+                         throughput, agent extras
 
 Re-running with the same OUT skips the episodes already in ``episodes.jsonl`` (a
 torn last line from a crash is dropped), so an interrupted run resumes.
-Episodes are grouped by scene: a worker builds each home once and runs all its
-episodes. With ``workers > 1`` the groups are spread over processes (spawned, so
-torch and PyBullet state are never forked); with ``ray=RayOptions(...)`` (``--ray``) they
-are Ray tasks on a cluster (``sim.evaluation.ray_backend``), with the same records.
+A worker keeps the home it built for its next episode of that home. Episodes are handed out
+one at a time as workers become free (``sim.evaluation.schedule``): homes longest first by an
+estimate from the episode data, a worker staying in its home while it has episodes, and a free
+worker joining another's home when no other home is left, so both cores are busy to the end.
+With ``workers > 1`` the workers are processes (spawned, so torch and PyBullet state are never
+forked); with ``ray=RayOptions(...)`` (``--ray``) each home is a Ray task on a cluster
+(``sim.evaluation.ray_backend``), homes longest first. Records are the same either way.
+
+Throughput (``summary.json`` ``throughput``, ``schedule.throughput``) covers the episodes run
+by this invocation: its wall time, the CPU time of its processes (``getrusage``: the runner and
+its workers, with start-up and home builds; Ray: the episodes' own), episodes per CPU-hour, per
+wall-hour and per core-hour (workers x wall), the workers' busy share (episode wall time over
+workers x wall), home builds, worker start-up and the idle tail. A resumed run's figures are
+those of the episodes run after resuming (earlier invocations' wall and CPU are not known); an
+invocation that finds nothing to run keeps the block it finds (marked
+``kept_from_earlier_invocation``). Each record's ``timing`` has ``wall_s`` and ``cpu_s``, and
+``summary.timing.cpu_s_per_episode`` is their mean over all records.
 
 Adding an agent (e.g. ``--agent modiin``)
 -----------------------------------------
@@ -51,9 +66,11 @@ import logging
 import math
 import multiprocessing as mp
 import os
+import resource
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -65,6 +82,7 @@ from sim.backend import SimBackend
 from sim.episodes import Episode, EpisodeSet, r4
 from sim.evaluation.cli import realism_of
 from sim.evaluation.registry import AgentSpec, get_spec
+from sim.evaluation.schedule import DEFAULT_POLICY, Schedule, SchedulePolicy, throughput, units_of
 from sim.metrics import aggregate
 from sim.sequences import SequenceEpisode, SequenceSet, load_any_set
 from sim.world import SimWorld
@@ -113,12 +131,12 @@ def run_episode(
     """Run one episode in an already built world; returns its record.
 
     goal_image: the episode's goal image ((H, W, 3) uint8 RGB), its PNG path, or the episode set it is in."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     if isinstance(goal_image, EpisodeSet):
         goal_image = goal_image.goal_image_path(episode)
     backend = SimBackend.for_episode(world, episode, goal_image, realism=realism_of(args))
     record, _ = run_on_backend(
-        backend, episode, spec, args, lambda oracle: spec.make_agent(args, oracle), fail_fast, t0
+        backend, episode, spec, args, lambda oracle: spec.make_agent(args, oracle), fail_fast, t0, c0
     )
     return record
 
@@ -131,12 +149,17 @@ def run_on_backend(
     make_agent: Callable[[Any], Agent],
     fail_fast: bool = False,
     t0: float | None = None,
+    c0: float | None = None,
 ) -> tuple[dict[str, Any], Agent | None]:
     """Run the agent ``make_agent(backend.oracle)`` on a built backend to the end of ``episode``
     (the backend's episode: one single-goal episode, or one subtask of a sequence) with the
     spec's observer; returns the record and the agent (None if making it failed). Closes the
-    backend (its final pose stays readable)."""
+    backend (its final pose stays readable). ``t0``, ``c0``: when the episode began, by
+    ``time.perf_counter`` and ``time.process_time`` (default: now); the record's ``timing``
+    holds the wall and CPU seconds since (``wall_s``, ``cpu_s``: the worker process's CPU,
+    all its threads)."""
     t0 = time.perf_counter() if t0 is None else t0
+    c0 = time.process_time() if c0 is None else c0
     realism = backend.realism
     agent_s = sim_s = 0.0
     error = None
@@ -186,6 +209,7 @@ def run_on_backend(
         },
         "timing": {
             "wall_s": r4(time.perf_counter() - t0),
+            "cpu_s": r4(time.process_time() - c0),
             "agent_ms_per_step": r4(1000 * agent_s / steps),
             "sim_ms_per_step": r4(1000 * sim_s / steps),
         },
@@ -235,31 +259,72 @@ def run_scene(
 ) -> Iterator[dict[str, Any]]:
     """Run episodes of one home (built once) in order, yielding each record as it finishes.
 
-    The work unit of every evaluation backend (local, worker processes, Ray tasks)."""
+    The work unit of Ray tasks (local workers run one episode at a time: ``_run_unit``)."""
     spec = get_spec(agent)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     world = SimWorld.from_seed(episodes[0].scene_seed)
-    build_s = time.perf_counter() - t0
+    build_s, build_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     try:
         for e, goal in zip(episodes, goal_images, strict=True):
             rec = run_episode(world, goal, e, spec, args, fail_fast)
             rec["timing"]["scene_build_s"] = r4(build_s)
+            rec["timing"]["scene_build_cpu_s"] = r4(build_cpu_s)
             yield rec
     finally:
         world.close()
 
 
-def _run_group(episode_dir: str, episode_ids: list[str], agent: str, args: argparse.Namespace, fail_fast: bool):
-    es = load_any_set(episode_dir)
-    if isinstance(es, SequenceSet):  # one record per sequence (sim.evaluation.multigoal)
-        from sim.evaluation.multigoal import run_sequence_scene
+class _HomeCache:
+    """The home a worker has built (one at a time): the next episode of the same home reuses it."""
 
-        seqs = [es.by_id(i) for i in episode_ids]
-        paths = [[es.goal_image_path(s, g) for g in range(len(s.goals))] for s in seqs]
-        yield from run_sequence_scene(seqs, paths, agent, args, fail_fast)
-        return
-    episodes = [es.by_id(i) for i in episode_ids]
-    yield from run_scene(episodes, [es.goal_image_path(e) for e in episodes], agent, args, fail_fast)
+    def __init__(self) -> None:
+        self.scene_seed: int | None = None
+        self.world: SimWorld | None = None
+        self.build_s = self.build_cpu_s = 0.0
+
+    def world_for(self, scene_seed: int) -> tuple[SimWorld, float | None]:
+        """The built home, and the seconds its build took if it was built now (None: reused)."""
+        if self.world is not None and self.scene_seed == scene_seed:
+            return self.world, None
+        self.close()
+        t0, c0 = time.perf_counter(), time.process_time()
+        self.world = SimWorld.from_seed(scene_seed)
+        self.scene_seed = scene_seed
+        self.build_s, self.build_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+        return self.world, self.build_s
+
+    def close(self) -> None:
+        if self.world is not None:
+            self.world.close()
+        self.world, self.scene_seed = None, None
+
+
+def _run_unit(
+    es: EpisodeSet | SequenceSet,
+    cache: _HomeCache,
+    unit_id: str,
+    spec: AgentSpec,
+    args: argparse.Namespace,
+    fail_fast: bool,
+) -> tuple[dict[str, Any], float | None]:
+    """Run one episode (one sequence of a multi-goal set) in the cached home; returns its record
+    (``timing.scene_build_s``, ``scene_build_cpu_s``: the wall and CPU seconds of the build of
+    the home it ran in, as ``run_scene`` records them) and the build seconds if the home was
+    built for it."""
+    if isinstance(es, SequenceSet):  # one record per sequence (sim.evaluation.multigoal)
+        from sim.evaluation.multigoal import run_sequence
+
+        seq = es.by_id(unit_id)
+        world, built = cache.world_for(seq.scene_seed)
+        paths = [es.goal_image_path(seq, g) for g in range(len(seq.goals))]
+        rec = run_sequence(world, seq, paths, spec, args, fail_fast)
+    else:
+        episode = es.by_id(unit_id)
+        world, built = cache.world_for(episode.scene_seed)
+        rec = run_episode(world, es, episode, spec, args, fail_fast)
+    rec["timing"]["scene_build_s"] = r4(cache.build_s)
+    rec["timing"]["scene_build_cpu_s"] = r4(cache.build_cpu_s)
+    return rec, built
 
 
 def error_record(episode: Episode, agent: str, error: str) -> dict[str, Any]:
@@ -302,21 +367,173 @@ def error_record(episode: Episode, agent: str, error: str) -> dict[str, Any]:
     }
 
 
-def _worker_main(episode_dir: str, agent: str, args: argparse.Namespace, fail_fast: bool, tasks, results) -> None:
+def _worker_main(
+    worker: int, episode_dir: str, agent: str, args: argparse.Namespace, fail_fast: bool, tasks, results
+) -> None:
+    """One worker process: runs the unit ids its ``tasks`` queue hands it (None: stop), keeping
+    the last home built; puts ``(kind, worker, payload)`` on ``results``: ``ready`` once set up,
+    ``record`` with ``(record, build seconds or None)`` per unit, ``fatal`` with the traceback of
+    an exception that stops the run, ``done`` at the end."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    spec = get_spec(agent)
+    cache = _HomeCache()
+    try:
+        spec = get_spec(agent)
+        if spec.worker_init:
+            spec.worker_init(args)
+        es = load_any_set(episode_dir)
+        results.put(("ready", worker, None))
+        while (unit_id := tasks.get()) is not None:
+            results.put(("record", worker, _run_unit(es, cache, unit_id, spec, args, fail_fast)))
+    except Exception as exc:  # reported to the parent, which stops the run
+        results.put(("fatal", worker, f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    finally:
+        cache.close()
+    results.put(("done", worker, None))
+
+
+@dataclass(slots=True)
+class _RunStats:
+    """What one invocation measured besides the records (``schedule.throughput``)."""
+
+    workers: int = 1
+    cpu_s: float | None = None
+    scene_builds: int = 0
+    scene_build_s: float = 0.0
+    worker_start_s: float | None = None
+    tail_idle_s: float | None = None
+
+    def built(self, seconds: float | None) -> None:
+        if seconds is not None:
+            self.scene_builds += 1
+            self.scene_build_s += seconds
+
+    def built_from_records(self, records: Sequence[dict[str, Any]]) -> None:
+        """Builds read from records whose builder did not report them (Ray tasks): the episodes
+        of one build share its home and ``timing.scene_build_s``."""
+        for _, seconds in {(r["scene_seed"], r["timing"].get("scene_build_s")) for r in records}:
+            self.built(float(seconds or 0.0))
+
+
+def _cpu_per_record(records: Sequence[dict[str, Any]], unit: str) -> dict[str, Any]:
+    """The mean CPU seconds per episode (sequence) over every record that has them (records from
+    before issue 32 have none)."""
+    cpu = [float(r["timing"]["cpu_s"]) for r in records if "cpu_s" in r["timing"]]
+    return {f"cpu_s_per_{unit}": r4(sum(cpu) / len(cpu)) if cpu else None}
+
+
+def _throughput_block(out: Path, ran: Sequence[dict[str, Any]], wall_s: float, stats: _RunStats) -> dict[str, Any]:
+    """summary.json's ``throughput``: of this invocation's episodes; when it ran none (everything
+    was done), the block the summary already had, which is the last invocation's that ran some."""
+    if not ran:
+        with contextlib.suppress(FileNotFoundError, json.JSONDecodeError, AttributeError):
+            previous = json.loads((out / SUMMARY).read_text()).get("throughput")
+            if previous:
+                return {**previous, "kept_from_earlier_invocation": True}
+    return throughput(
+        ran,
+        workers=stats.workers,
+        wall_s=wall_s,
+        cpu_s=stats.cpu_s,
+        scene_builds=stats.scene_builds,
+        scene_build_s=stats.scene_build_s,
+        worker_start_s=stats.worker_start_s,
+        tail_idle_s=stats.tail_idle_s,
+    )
+
+
+def _cpu_s() -> float:
+    """CPU seconds used so far by this process and its waited-for children (the workers)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _run_here(
+    es: EpisodeSet | SequenceSet,
+    schedule: Schedule,
+    spec: AgentSpec,
+    args: argparse.Namespace,
+    fail_fast: bool,
+    write: Callable[[dict[str, Any]], None],
+    stats: _RunStats,
+) -> None:
+    """Run the schedule in this process (one worker)."""
+    t0 = time.perf_counter()
     if spec.worker_init:
         spec.worker_init(args)
-    while True:
-        ids = tasks.get()
-        if ids is None:
-            break
-        try:
-            for rec in _run_group(episode_dir, ids, agent, args, fail_fast):
-                results.put(("record", rec))
-        except Exception as exc:  # reported to the parent, which stops the run
-            results.put(("fatal", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
-    results.put(("done", None))
+    stats.worker_start_s = time.perf_counter() - t0
+    cache = _HomeCache()
+    try:
+        while (unit := schedule.next_for(0)) is not None:
+            rec, built = _run_unit(es, cache, unit.unit_id, spec, args, fail_fast)
+            stats.built(built)
+            write(rec)
+    finally:
+        cache.close()
+    stats.tail_idle_s = 0.0
+
+
+def _run_workers(
+    episode_dir: str,
+    schedule: Schedule,
+    n: int,
+    agent: str,
+    args: argparse.Namespace,
+    fail_fast: bool,
+    write: Callable[[dict[str, Any]], None],
+    stats: _RunStats,
+) -> None:
+    """Run the schedule on ``n`` spawned worker processes, handing each its next unit as it
+    finishes the last (``schedule.Schedule``), so no worker waits while work is left."""
+    ctx = mp.get_context("spawn")
+    results = ctx.Queue()
+    tasks = [ctx.Queue() for _ in range(n)]
+    procs = [
+        ctx.Process(target=_worker_main, args=(w, episode_dir, agent, args, fail_fast, tasks[w], results))
+        for w in range(n)
+    ]
+    ran_out: dict[int, float] = {}  # worker -> when it was told nothing is left
+
+    def hand_out(w: int) -> None:
+        unit = schedule.next_for(w)
+        tasks[w].put(None if unit is None else unit.unit_id)
+        if unit is None:
+            ran_out[w] = time.perf_counter()
+
+    t0 = time.perf_counter()
+    with _worker_thread_env(max(1, (os.cpu_count() or 1) // n)):
+        for p in procs:
+            p.start()
+    for w in range(n):  # queued now, so each worker starts its first unit as soon as it is ready
+        hand_out(w)
+    start_s, finished, fatal, ok = 0.0, 0, None, False
+    try:
+        while finished < n:
+            kind, w, payload = results.get()
+            if kind == "ready":
+                start_s += time.perf_counter() - t0
+            elif kind == "record":
+                rec, built = payload
+                stats.built(built)
+                write(rec)
+                hand_out(w)
+            elif kind == "fatal":
+                fatal = payload
+                break
+            else:
+                finished += 1
+        ok = fatal is None
+    finally:
+        t_end = time.perf_counter()
+        if not ok:
+            for p in procs:
+                p.terminate()
+        for p in procs:
+            p.join()
+    if fatal is not None:
+        raise RuntimeError(f"an evaluation worker failed: {fatal}")
+    stats.workers = n
+    stats.worker_start_s = start_s
+    stats.tail_idle_s = sum(t_end - t for t in ran_out.values())
 
 
 def read_records(out_dir: Path) -> list[dict[str, Any]]:
@@ -349,6 +566,7 @@ def run_evaluation(
     fail_fast: bool = False,
     ray: RayOptions | None = None,
     episode_ids: Sequence[str] | None = None,
+    policy: SchedulePolicy = DEFAULT_POLICY,
 ) -> dict[str, Any]:
     """Evaluate ``agent`` on the first ``limit`` episodes of the set; returns the summary.
 
@@ -360,7 +578,10 @@ def run_evaluation(
 
     A multi-goal set (``imgnav episodes --goals N``) gets one record per sequence and its own
     summary (``sim.evaluation.multigoal``); ``args.subtask_budget`` (``--subtask-budget``) is
-    its budget per goal."""
+    its budget per goal.
+
+    ``policy``: how episodes are handed to workers (``sim.evaluation.schedule``); the default
+    is the one to use, ``schedule.OLD_POLICY`` is the old way, for benchmarks."""
     from tqdm import tqdm
 
     es = load_any_set(episode_dir)
@@ -408,69 +629,48 @@ def run_evaluation(
             "use another --out or --overwrite"
         )
     todo = [e for e in selected if e.episode_id not in done]
-    groups: dict[int, list[str]] = {}
-    for e in todo:
-        groups.setdefault(e.scene_seed, []).append(e.episode_id)
+    schedule = Schedule(units_of(todo), policy)
     if done:
         log.info("resuming: %d of %d episodes already done", len(selected) - len(todo), len(selected))
     bar = tqdm(
         total=len(selected), initial=len(selected) - len(todo), desc=f"eval {agent}", unit="ep", disable=not progress
     )
-    t0 = time.perf_counter()
+    ran: list[dict[str, Any]] = []  # the records of this invocation
+    stats = _RunStats()
+    t0, cpu0 = time.perf_counter(), _cpu_s()
     with (out / RECORDS).open("a") as fh:
 
         def write(rec: dict[str, Any]) -> None:
             fh.write(json.dumps(_json_safe(rec)) + "\n")
             fh.flush()
             done[rec["episode_id"]] = rec
+            ran.append(rec)
             bar.update(1)
             bar.set_postfix(sr=f"{sum(bool(done[i]['success']) for i in done) / len(done):.2f}")
 
+        n = min(workers, schedule.max_parallel)
         if ray is not None:
             from sim.evaluation.ray_backend import run_scenes_on_ray
 
             assert isinstance(es, EpisodeSet)  # multi-goal sets were refused above
-            run_scenes_on_ray(ray, es, list(groups.values()), agent, args, fail_fast, write, is_done=done.__contains__)
-        elif workers <= 1 or len(groups) <= 1:
-            if spec.worker_init:
-                spec.worker_init(args)
-            for ids in groups.values():
-                for rec in _run_group(str(episode_dir), ids, agent, args, fail_fast):
-                    write(rec)
+            # one Ray task per home, homes longest first (in the order one worker would run them)
+            seed_of = {e.episode_id: e.scene_seed for e in todo}
+            groups: dict[int, list[str]] = {}
+            for unit_id in schedule.plan():
+                groups.setdefault(seed_of[unit_id], []).append(unit_id)
+            cpus = run_scenes_on_ray(
+                ray, es, list(groups.values()), agent, args, fail_fast, write, is_done=done.__contains__
+            )
+            stats.workers = max(1, cpus)
+            # a task's episodes share its build; the CPU of Ray's workers is not ours to read
+            stats.built_from_records(ran)
+        elif n <= 1:
+            _run_here(es, schedule, spec, args, fail_fast, write, stats)
+            stats.cpu_s = _cpu_s() - cpu0
         else:
-            ctx = mp.get_context("spawn")
-            tasks, results = ctx.Queue(), ctx.Queue()
-            n = min(workers, len(groups))
-            for ids in sorted(groups.values(), key=len, reverse=True):
-                tasks.put(ids)
-            for _ in range(n):
-                tasks.put(None)
-            procs = [
-                ctx.Process(target=_worker_main, args=(str(episode_dir), agent, args, fail_fast, tasks, results))
-                for _ in range(n)
-            ]
-            with _worker_thread_env(max(1, (os.cpu_count() or 1) // n)):
-                for p in procs:
-                    p.start()
-            finished, fatal = 0, None
-            try:
-                while finished < n:
-                    kind, payload = results.get()
-                    if kind == "record":
-                        write(payload)
-                    elif kind == "fatal":
-                        fatal = payload
-                        break
-                    else:
-                        finished += 1
-            finally:
-                if fatal is not None:
-                    for p in procs:
-                        p.terminate()
-                for p in procs:
-                    p.join()
-            if fatal is not None:
-                raise RuntimeError(f"an evaluation worker failed: {fatal}")
+            _run_workers(str(episode_dir), schedule, n, agent, args, fail_fast, write, stats)
+            stats.cpu_s = _cpu_s() - cpu0
+    wall_s = time.perf_counter() - t0
     bar.close()
     records = [done[e.episode_id] for e in selected if e.episode_id in done]
     if multi:
@@ -485,10 +685,12 @@ def run_evaluation(
             "split": es.split,
             "errors": sum(1 for r in records if r.get("error")),
             "timing": {
-                "wall_s_this_run": r4(time.perf_counter() - t0),
+                "wall_s_this_run": r4(wall_s),
                 "agent_ms_per_step": r4(sum(r["timing"]["agent_ms_per_step"] for r in records) / max(len(records), 1)),
                 "sim_ms_per_step": r4(sum(r["timing"]["sim_ms_per_step"] for r in records) / max(len(records), 1)),
+                **_cpu_per_record(records, "sequence" if multi else "episode"),
             },
+            "throughput": _throughput_block(out, ran, wall_s, stats),
         }
     )
     if spec.summarize and not multi:  # a multi-goal summary has the agent's own over its subtasks

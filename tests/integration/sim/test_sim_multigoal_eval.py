@@ -77,6 +77,12 @@ def test_the_oracle_reaches_every_goal_of_a_sequence(small_sequence_set: Path, t
     assert summary["first_goal"]["sr"] == summary["later_goals"]["sr"] == 1.0
     assert summary["first_goal"]["episodes"] == 1 and summary["later_goals"]["episodes"] == 2
     assert summary["sequence"]["all_goals_sr"] == 1.0 and summary["sequence"]["goals_reached"] == 3.0
+    # throughput per sequence and per subtask (issue 32); CPU seconds in the sequence and its subtasks
+    t = summary["throughput"]
+    assert t["sequences"] == 1 and t["subtasks"] == 3 and t["workers"] == 1 and t["scene_builds"] == 1
+    assert t["subtasks_per_cpu_hour"] == pytest.approx(3 * t["sequences_per_cpu_hour"], rel=1e-3)
+    assert t["cpu_s"] > 0 and 0 < t["busy_share"] <= 1 and t["subtasks_per_wall_hour"] > 0
+    assert rec["timing"]["cpu_s"] >= sum(s["timing"]["cpu_s"] for s in subs) > 0
 
 
 def test_each_subtask_has_its_budget_and_starts_where_the_last_ended(small_sequence_set: Path, tmp_path: Path) -> None:

@@ -137,3 +137,14 @@ def test_identical_lists_every_difference_but_timings(tmp_path):
     assert identical(str(tmp_path / "a"), str(tmp_path / "c"), ["agent_config"])[1] == ["e1: modiin.trace.s[1]: 2 -> 3"]
     assert main([str(tmp_path / "a"), str(tmp_path / "b"), "--identical"]) == 0
     assert main([str(tmp_path / "a"), str(tmp_path / "c"), "--identical"]) == 1
+
+
+def test_identical_leaves_out_the_timings_of_a_sequences_subtasks() -> None:
+    from sim.evaluation.compare import TIMING_FIELDS, record_differences
+
+    def seq(wall_s: float, steps: int) -> dict:
+        sub = {"steps": steps, "timing": {"wall_s": wall_s, "cpu_s": wall_s}, "modiin": {"median_ms": {"t": wall_s}}}
+        return {"episode_id": "q", "timing": {"wall_s": wall_s}, "subtasks": [sub, dict(sub)]}
+
+    assert record_differences(seq(1.0, 3), seq(2.0, 3), TIMING_FIELDS) == []
+    assert record_differences(seq(1.0, 3), seq(2.0, 4), TIMING_FIELDS) == ["subtasks[0].steps", "subtasks[1].steps"]
