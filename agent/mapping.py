@@ -47,7 +47,8 @@ class MappingConfig:
     max_depth_m: float = 30.0  # the sim's depth is exact; a real sensor wants ~5 m
     obstacle_min_height_m: float = 0.10  # above floor noise, below the lowest furniture
     obstacle_max_height_m: float = ROBOT_HEIGHT_M  # anything higher cannot hit the robot
-    obstacle_min_points: int = 3  # per cell and frame: filters depth speckle (issue 30: docs/experiments/realism-val.md)
+    # per cell and frame: filters depth speckle (issue 30: docs/experiments/realism-val.md)
+    obstacle_min_points: int = 3
     # a reading that differs from the median of its 3x3 neighbourhood by more than this share is
     # dropped (a stereo camera's flying pixels between two surfaces); 0: off
     depth_consistency: float = 0.05
