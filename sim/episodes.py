@@ -162,49 +162,67 @@ def write_rgb(path: str | Path, rgb: np.ndarray) -> None:
         raise OSError(f"cannot write image {path}")
 
 
-def episodes_json_text(
-    split: str, seed: int, episodes: list[Episode] | tuple[Episode, ...], meta: dict[str, Any]
-) -> str:
+def set_json_text(fmt: str, version: int, split: str, seed: int, items: Any, meta: dict[str, Any]) -> str:
+    """The ``episodes.json`` text of a set (single-goal episodes or multi-goal sequences)."""
     doc = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
+        "format": fmt,
+        "version": version,
         "split": split,
         "seed": seed,
         **meta,
-        "episodes": [e.to_json() for e in episodes],
+        "episodes": [e.to_json() for e in items],
     }
     return json.dumps(doc, indent=1, sort_keys=False) + "\n"
+
+
+def write_set_json(directory: str | Path, text: str) -> Path:
+    """Write DIR/episodes.json atomically (goal PNGs are written by the generator as it goes)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "episodes.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
+def read_set_doc(directory: Path) -> dict[str, Any]:
+    """DIR/episodes.json as written by ``imgnav episodes`` (any format)."""
+    path = directory / "episodes.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{path} not found: not an episode set (create one with `imgnav episodes`)") from exc
+
+
+def check_set_version(path: Path, doc: dict[str, Any], what: str, version: int) -> None:
+    if doc.get("version") != version:
+        raise ValueError(f"{path}: {what} version {doc.get('version')} is not supported (expected {version})")
+
+
+def episodes_json_text(
+    split: str, seed: int, episodes: list[Episode] | tuple[Episode, ...], meta: dict[str, Any]
+) -> str:
+    return set_json_text(FORMAT, FORMAT_VERSION, split, seed, episodes, meta)
 
 
 def save_episode_set(
     directory: str | Path, split: str, seed: int, episodes: list[Episode], meta: dict[str, Any]
 ) -> Path:
     """Write DIR/episodes.json (goal PNGs are written by the generator as it goes)."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "episodes.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(episodes_json_text(split, seed, episodes, meta))
-    tmp.replace(path)
-    return path
+    return write_set_json(directory, episodes_json_text(split, seed, episodes, meta))
 
 
 def load_episode_set(directory: str | Path) -> EpisodeSet:
     """Read an episode set written by ``imgnav episodes``."""
     directory = Path(directory)
     path = directory / "episodes.json"
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise FileNotFoundError(f"{path} not found: not an episode set (create one with `imgnav episodes`)") from exc
+    doc = read_set_doc(directory)
     if doc.get("format") == "imgnav-sequences":
         raise ValueError(f"{path}: a multi-goal set (imgnav episodes --goals N): read it with sim.sequences")
     if doc.get("format") != FORMAT:
         raise ValueError(f"{path}: not an imgnav episode set (format {doc.get('format')!r})")
-    if doc.get("version") != FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: episode-set version {doc.get('version')} is not supported (expected {FORMAT_VERSION})"
-        )
+    check_set_version(path, doc, "episode-set", FORMAT_VERSION)
     episodes = tuple(Episode.from_json(e) for e in doc["episodes"])
     meta = {k: v for k, v in doc.items() if k not in ("episodes",)}
     return EpisodeSet(directory, str(doc["split"]), int(doc["seed"]), episodes, meta)

@@ -20,7 +20,6 @@ the earlier goal it repeats or resembles. Single-goal sets (``sim.episodes``) ar
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,17 @@ import numpy as np
 
 from agent.types import Pose2D
 from sim.episodes import FORMAT as EPISODES_FORMAT
-from sim.episodes import Episode, EpisodeSet, load_episode_set, r4, read_rgb
+from sim.episodes import (
+    Episode,
+    EpisodeSet,
+    check_set_version,
+    load_episode_set,
+    r4,
+    read_rgb,
+    read_set_doc,
+    set_json_text,
+    write_set_json,
+)
 
 FORMAT = "imgnav-sequences"
 FORMAT_VERSION = 1
@@ -188,49 +197,24 @@ class SequenceSet:
 
 
 def sequences_json_text(split: str, seed: int, episodes: list[SequenceEpisode], meta: dict[str, Any]) -> str:
-    doc = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "split": split,
-        "seed": seed,
-        **meta,
-        "episodes": [e.to_json() for e in episodes],
-    }
-    return json.dumps(doc, indent=1, sort_keys=False) + "\n"
+    return set_json_text(FORMAT, FORMAT_VERSION, split, seed, episodes, meta)
 
 
 def save_sequence_set(
     directory: str | Path, split: str, seed: int, episodes: list[SequenceEpisode], meta: dict[str, Any]
 ) -> Path:
     """Write DIR/episodes.json (goal PNGs are written by the generator as it goes)."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "episodes.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(sequences_json_text(split, seed, episodes, meta))
-    tmp.replace(path)
-    return path
-
-
-def _read_doc(directory: Path) -> dict[str, Any]:
-    path = directory / "episodes.json"
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise FileNotFoundError(f"{path} not found: not an episode set (create one with `imgnav episodes`)") from exc
+    return write_set_json(directory, sequences_json_text(split, seed, episodes, meta))
 
 
 def load_sequence_set(directory: str | Path) -> SequenceSet:
     """Read a multi-goal set written by ``imgnav episodes --goals N``."""
     directory = Path(directory)
-    doc = _read_doc(directory)
+    doc = read_set_doc(directory)
     path = directory / "episodes.json"
     if doc.get("format") != FORMAT:
         raise ValueError(f"{path}: not an imgnav multi-goal set (format {doc.get('format')!r})")
-    if doc.get("version") != FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: sequence-set version {doc.get('version')} is not supported (expected {FORMAT_VERSION})"
-        )
+    check_set_version(path, doc, "sequence-set", FORMAT_VERSION)
     episodes = tuple(SequenceEpisode.from_json(e) for e in doc["episodes"])
     meta = {k: v for k, v in doc.items() if k != "episodes"}
     return SequenceSet(directory, str(doc["split"]), int(doc["seed"]), episodes, meta)
@@ -239,7 +223,7 @@ def load_sequence_set(directory: str | Path) -> SequenceSet:
 def load_any_set(directory: str | Path) -> EpisodeSet | SequenceSet:
     """A single-goal ``EpisodeSet`` or a multi-goal ``SequenceSet``, whichever the directory holds."""
     directory = Path(directory)
-    fmt = _read_doc(directory).get("format")
+    fmt = read_set_doc(directory).get("format")
     if fmt == FORMAT:
         return load_sequence_set(directory)
     if fmt != EPISODES_FORMAT:
