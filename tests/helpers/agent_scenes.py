@@ -30,25 +30,22 @@ def render_depth(
     v, u = np.mgrid[0:h, 0:w]
     fwd, left, up = camera_rays_base(u.ravel() + 0.5, v.ravel() + 0.5, intrinsics, tilt_rad)
     c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
-    dx = c * fwd - s * left
-    dy = s * fwd + c * left
-    dz = up
-    o = np.array([pose.x_m, pose.y_m, camera_height_m])
-    t = np.full(dx.shape, far_m, np.float64)
-    ids = np.full(dx.shape, -1, np.int64)
+    # one contiguous array per axis: the slab test below is elementwise on each
+    d = [np.ascontiguousarray(a, np.float64) for a in (c * fwd - s * left, s * fwd + c * left, up)]
+    o = (pose.x_m, pose.y_m, camera_height_m)
+    t = np.full(d[0].shape, far_m, np.float64)
+    ids = np.full(d[0].shape, -1, np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t_floor = np.where(dz < 0, -o[2] / dz, np.inf)
-        t = np.minimum(t, t_floor)
-        d = np.stack([dx, dy, dz], axis=1).astype(np.float64)
+        t = np.minimum(t, np.where(d[2] < 0, -o[2] / d[2], np.inf))
         for k, (x0, y0, x1, y1, hz) in enumerate(boxes):
-            lo = np.array([x0, y0, 0.0]) - o
-            hi = np.array([x1, y1, hz]) - o
-            t1 = lo / d
-            t2 = hi / d
-            tmin = np.nanmax(np.minimum(t1, t2), axis=1)
-            tmax = np.nanmin(np.maximum(t1, t2), axis=1)
-            hit = (tmax >= tmin) & (tmax > 0)
-            closer = hit & (tmin > 0) & (tmin < t)
+            tmin = tmax = None
+            for lo, hi, oi, di in zip((x0, y0, 0.0), (x1, y1, hz), o, d):
+                t1, t2 = (lo - oi) / di, (hi - oi) / di
+                near, far = np.minimum(t1, t2), np.maximum(t1, t2)
+                # fmax/fmin skip the NaN of 0/0 (a ray in a face's plane), as nanmax/nanmin do
+                tmin = near if tmin is None else np.fmax(tmin, near)
+                tmax = far if tmax is None else np.fmin(tmax, far)
+            closer = (tmax >= tmin) & (tmax > 0) & (tmin > 0) & (tmin < t)
             t = np.where(closer, tmin, t)
             ids = np.where(closer, k, ids)
     t = np.where(t >= far_m, 0.0, t)
