@@ -210,11 +210,15 @@ class Recall:
 
 @dataclass(frozen=True, slots=True)
 class GoalSummary:
-    """One goal in this home: its steps, how it ended, its candidates at the end, and what the
-    memory gave it at its start (remembered views that added goal points, their best score)."""
+    """One goal in this home: its steps, how it began (``first_mode``: the mode of its first step,
+    ``look_around`` unless a candidate was there to head for) and ended, its candidates at the end,
+    and what the memory gave it at its start (the keyframes it was scored against, the remembered
+    views that added goal points, their best score)."""
 
     goal_index: int
+    keyframes_at_start: int = 0
     steps: int = 0
+    first_mode: str | None = None
     final_mode: str | None = None
     final_event: str | None = None
     candidates: tuple[CandidateInfo, ...] = ()
@@ -225,7 +229,9 @@ class GoalSummary:
     def as_dict(self) -> dict[str, Any]:
         return {
             "goal_index": self.goal_index,
+            "keyframes_at_start": self.keyframes_at_start,
             "steps": self.steps,
+            "first_mode": self.first_mode,
             "final_mode": self.final_mode,
             "final_event": self.final_event,
             "recalled_views": self.recalled_views,
@@ -345,10 +351,10 @@ class HomeMemory:
         if matcher is not None and self.matcher is not None and matcher != self.matcher and self._keyframes:
             raise ValueError(f"this memory keeps {self.matcher} descriptors, not {matcher}'s: clear it first")
         self.goal_index += 1
-        self.goals.append(GoalSummary(self.goal_index))
         old = [k for k, kf in self._keyframes.items() if self.goal_index - kf.goal_index > self.config.max_age_goals]
         for k in old:
             del self._keyframes[k]
+        self.goals.append(GoalSummary(self.goal_index, keyframes_at_start=len(self._keyframes)))
         if self.grid is None:
             self.grid = GridMap(mapping)
         else:
@@ -379,7 +385,12 @@ class HomeMemory:
         self.last_pose = record.pose
         g = self.goals[-1]
         self.goals[-1] = replace(
-            g, steps=g.steps + 1, final_mode=record.mode, final_event=record.event, candidates=record.candidates
+            g,
+            steps=g.steps + 1,
+            first_mode=record.mode if g.steps == 0 else g.first_mode,
+            final_mode=record.mode,
+            final_event=record.event,
+            candidates=record.candidates,
         )
 
     def note_recall(self, views: int, best_score: float | None, ms: float) -> None:

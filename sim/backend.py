@@ -9,7 +9,12 @@ computed when first needed (scoring, the oracle), not before the first action, a
 ``scoring`` and ``start_render`` callables that return the same data kept from an
 earlier run (the scene is static: same world, target and start, same values).
 
-* ``reset()`` starts at the start pose; ``Observation.pose`` is relative to it.
+* ``reset()`` starts at the start pose; ``Observation.pose`` is relative to it, or, with
+  ``frame_origin`` (the pose of this run's start in another frame), in that frame: a later goal
+  of a multi-goal sequence whose agent keeps a memory of the home gets its poses in the frame of
+  the sequence's first start (``sim.evaluation.multigoal``), as a robot's odometry goes on from
+  one request to the next. ``SimOracle.frame_world`` is where that frame lies in the world, for
+  everything that compares the agent's poses, points and map with the truth.
 * ``apply(action)``: one discrete action; STOP ends the episode; so does the
   1000-step budget. Applying after the end raises ``BackendError("episode_over")``.
 * ``oracle``: a separate ``SimOracle`` with ground truth (goal mask in the current
@@ -83,7 +88,8 @@ def _commanded(action: Action) -> Pose2D:
 
 class SimOracle:
     """Ground truth about the current run. Frames: ``*_world`` in the home's frame,
-    ``*_start`` in the run's start-relative frame (the agent's frame)."""
+    ``*_start`` in the run's start-relative frame (the agent's frame unless the backend has a
+    ``frame_origin``; ``frame_world`` is always the agent's)."""
 
     def __init__(self, backend: SimBackend) -> None:
         self._b = backend
@@ -96,6 +102,15 @@ class SimOracle:
     @property
     def start_pose_world(self) -> Pose2D:
         return self._b.start_pose_world
+
+    @property
+    def frame_world(self) -> Pose2D:
+        """The world pose of the frame the agent's poses (and so its map and goal points) are in:
+        the start pose, or with a ``frame_origin`` the pose that origin makes of it
+        (``start_pose_world * frame_origin^-1``). The pose estimate starts at the true start, so
+        this holds for the agent's beliefs of this run: ``frame_world * Observation.pose`` is the
+        believed pose in the world (``SimBackend.estimate_world``)."""
+        return self._b.frame_world
 
     @property
     def world(self) -> SimWorld:
@@ -198,13 +213,15 @@ class SimBackend:
         start_render: Callable[[], Render] | None = None,
         realism: Realism | None = None,
         run_key: str | None = None,
+        frame_origin: Pose2D | None = None,
     ) -> None:
         """``scoring``: the target's ``GoalScoring`` for this world and start (used only when
         ``goal_instance_id`` is given without ``viewpoints_xy_m``; default: ``goal_scoring``),
         called when first needed. ``start_render``: the frame at the start pose with this
         camera, called instead of rendering it (at ``reset``); it must return arrays the run
         may keep. ``realism``: the profile and seed of the run's noise (None: exact), keyed by
-        ``run_key`` (default: the episode id)."""
+        ``run_key`` (default: the episode id). ``frame_origin``: the pose of the start in the frame
+        ``Observation.pose`` is to be given in (None: the start itself, pose (0, 0, 0) at reset)."""
         goal_image = np.asarray(goal_image)
         if goal_image.ndim != 3 or goal_image.shape[2] != 3 or goal_image.dtype != np.uint8:
             raise ValueError("goal_image must be (h, w, 3) uint8 RGB")
@@ -217,6 +234,11 @@ class SimBackend:
         self.goal_image_rendered = goal_image
         self.goal_image = start.goal_photo(goal_image) if start is not None else goal_image
         self.start_pose_world = start_pose_world
+        self.frame_origin = frame_origin
+        # the world pose of the agent's frame (the start's, unless another frame is asked for)
+        self.frame_world = (
+            start_pose_world if frame_origin is None else start_pose_world.compose(frame_origin.inverse())
+        )
         self.goal_instance_id = goal_instance_id
         self.camera = camera
         self.max_steps = max_steps
@@ -321,6 +343,8 @@ class SimBackend:
         believed = self.estimate_world
         # exactly (0, 0, 0) at the start (the Backend contract), not 1e-16 from the frame change
         pose = Pose2D() if believed == self.start_pose_world else believed.relative_to(self.start_pose_world)
+        if self.frame_origin is not None:
+            pose = self.frame_origin.compose(pose)
         return Observation(
             rgb=rgb,
             depth_m=depth,

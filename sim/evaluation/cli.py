@@ -6,7 +6,8 @@
 Writes OUT/episodes.jsonl (one record per episode) and OUT/summary.json (sr, spl,
 ne, max_st, episodes, per_category, ...). Re-running skips finished episodes. On a multi-goal
 set (``imgnav episodes --goals N``) a record is a sequence with its subtasks and the summary
-sets the first goal against the later ones (``sim.evaluation.multigoal``).
+sets the first goal against the later ones (``sim.evaluation.multigoal``); ``--memory`` gives
+the goals of a sequence one memory of the home.
 Agents come from ``sim.evaluation.registry`` (each adds its own flags below).
 """
 
@@ -45,6 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="STEPS",
         help="multi-goal sets only: steps per goal of a sequence (default: the single-goal budget, 1000)",
+    )
+    parser.add_argument(
+        "--memory",
+        action="store_true",
+        help="multi-goal sets, agents with a memory of a home (modiin) only: the goals of a sequence share "
+        "one memory of the home (the map, keyframes of what was seen, earlier goals), in one pose frame "
+        "carried from goal to goal, so a later goal is first looked for in what was seen before; each "
+        "subtask's record gets the memory's figures. Off (default): every goal starts from nothing",
     )
     parser.add_argument("--overwrite", action="store_true", help="discard earlier results in --out instead of resuming")
     parser.add_argument(

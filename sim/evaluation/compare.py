@@ -25,10 +25,10 @@ actions (a change meant to leave the agent's decisions alone should say "all").
 
 ``--identical`` checks a change meant to leave the agent alone (a refactoring): on the episodes
 both runs have, every field of each record must be equal, apart from timings (``timing``,
-``modiin.median_ms``) and the fields named with ``--ignore`` (dotted paths, e.g.
-``agent_config``; a path also names that field in the items of a list, such as a multi-goal
-record's subtasks: ``timing`` leaves out ``subtasks[2].timing``); it lists every other
-difference and exits 1 when there is one.
+``modiin.median_ms``, a multi-goal subtask's ``memory.recall_ms``) and the fields named with
+``--ignore`` (dotted paths, e.g. ``agent_config``; a path also names that field in the items of
+a list, such as a multi-goal record's subtasks: ``timing`` leaves out ``subtasks[2].timing``);
+it lists every other difference and exits 1 when there is one.
 """
 
 from __future__ import annotations
@@ -223,7 +223,7 @@ def cost(records: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     }
 
 
-TIMING_FIELDS = ("timing", "modiin.median_ms")
+TIMING_FIELDS = ("timing", "modiin.median_ms", "memory.recall_ms")
 
 
 def _ignored(path: str, ignore: Sequence[str]) -> bool:

@@ -167,6 +167,14 @@ def make_agent(args: argparse.Namespace, oracle: Any):
     return agent
 
 
+def make_memory(args: argparse.Namespace) -> Any:
+    """A memory of one home for the agents of a sequence's goals (``imgnav eval --memory``),
+    bounded by the agent config's ``memory`` section."""
+    from agent.memory import HomeMemory
+
+    return HomeMemory(build_config(args).memory)
+
+
 class _PendingGoalMask:
     """The ground-truth goal-image mask, filled in by the episode's observer (which knows the
     episode's goal camera) before ``agent.reset`` calls it."""
@@ -301,6 +309,12 @@ class Attribution:
     * a ``localisation`` or ``local_navigation`` failure becomes ``pose_drift`` when the
       believed position was ever ``DRIFT_CAUSE_M`` off the true one, and a ``local_navigation``
       failure ``mapping_ghosts`` when the map holds >= ``GHOST_CAUSE_CELLS`` phantom cells.
+
+    The agent's poses, goal points, candidates and map are put in the world through the oracle's
+    ``frame_world``, the world pose of the frame they are in: the run's start, or, for a later
+    goal of a sequence run with a memory of the home (``--memory``), the frame of the sequence's
+    first start as this run's pose estimate places it (``sim.backend.SimOracle.frame_world``).
+    The remembered part of the map is judged where the agent now believes it to be.
     """
 
     def __init__(self, args: argparse.Namespace, episode: Any, oracle: Any) -> None:
@@ -340,7 +354,7 @@ class Attribution:
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
-        believed = self.oracle.start_pose_world.compose(obs.pose)
+        believed = self.oracle.frame_world.compose(obs.pose)
         true = self.oracle.pose_world
         self.pose_error_m.append(math.hypot(believed.x_m - true.x_m, believed.y_m - true.y_m))
         px = int(self.oracle.goal_mask().sum())
@@ -388,7 +402,7 @@ class Attribution:
         record = self.last if record is None else record
         if record is None or len(record.goal_points_xyz) == 0:
             return None
-        pts = self.oracle.start_pose_world.transform_xy(record.goal_points_xyz[:, :2])
+        pts = self.oracle.frame_world.transform_xy(record.goal_points_xyz[:, :2])
         x0, y0, x1, y1 = self.goal_bounds_world
         dx = np.maximum(np.maximum(x0 - pts[:, 0], pts[:, 0] - x1), 0.0)
         dy = np.maximum(np.maximum(y0 - pts[:, 1], pts[:, 1] - y1), 0.0)
@@ -402,7 +416,7 @@ class Attribution:
         out = []
         x0, y0, x1, y1 = self.goal_bounds_world
         for c in getattr(self.last, "candidates", ()):
-            x, y = self.oracle.start_pose_world.transform_xy(np.array([c.xy_m]))[0]
+            x, y = self.oracle.frame_world.transform_xy(np.array([c.xy_m]))[0]
             to_goal = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
             row = {
                 "id": c.id,
@@ -425,7 +439,7 @@ class Attribution:
             return None if snap is None else 0
         ij = np.argwhere(snap.obstacle)
         xy_run = (ij[:, ::-1] + 0.5) * snap.resolution_m + np.asarray(snap.origin_xy_m)
-        xy = self.oracle.start_pose_world.transform_xy(xy_run)
+        xy = self.oracle.frame_world.transform_xy(xy_run)
         grid = self.oracle.navigable
         clear = _open_floor(grid)
         gi = np.floor((xy[:, 1] - grid.origin_xy_m[1]) / grid.resolution_m).astype(np.int64)
@@ -568,6 +582,7 @@ register(
         make_observer=Attribution,
         summarize=summarize,
         worker_init=worker_init,
+        make_memory=make_memory,
     )
 )
 

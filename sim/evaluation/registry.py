@@ -50,6 +50,10 @@ class AgentSpec:
     make_observer(args, episode, oracle) -> EpisodeObserver | None: per-episode hook.
     summarize(records) -> dict: extra summary.json fields from all episode records.
     worker_init(args): runs once in every worker process (e.g. torch thread counts).
+    make_memory(args) -> a memory of a home: for an agent that can keep one across the goals of a
+        multi-goal sequence (``imgnav eval --memory``; ``sim.evaluation.multigoal``): one per
+        sequence, set as each goal's agent's ``home_memory`` before its ``reset``. None: the
+        agent has none, and ``--memory`` is refused.
     """
 
     name: str
@@ -59,6 +63,7 @@ class AgentSpec:
     make_observer: Callable[[argparse.Namespace, Any, Any], EpisodeObserver | None] | None = None
     summarize: Callable[[list[dict[str, Any]]], Mapping[str, Any]] | None = None
     worker_init: Callable[[argparse.Namespace], None] | None = None
+    make_memory: Callable[[argparse.Namespace], Any] | None = None
 
 
 _REGISTRY: dict[str, AgentSpec] = {}

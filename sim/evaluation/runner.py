@@ -578,7 +578,8 @@ def run_evaluation(
 
     A multi-goal set (``imgnav episodes --goals N``) gets one record per sequence and its own
     summary (``sim.evaluation.multigoal``); ``args.subtask_budget`` (``--subtask-budget``) is
-    its budget per goal.
+    its budget per goal, and ``args.memory`` (``--memory``) gives the goals of a sequence one
+    memory of the home (resuming refuses to mix runs with and without it).
 
     ``policy``: how episodes are handed to workers (``sim.evaluation.schedule``); the default
     is the one to use, ``schedule.OLD_POLICY`` is the old way, for benchmarks."""
@@ -595,8 +596,12 @@ def run_evaluation(
         budget = multigoal.subtask_budget(args)
         if ray is not None:
             raise ValueError("--ray does not run multi-goal sets yet; use --workers")
+        if multigoal.uses_memory(args) and spec.make_memory is None:
+            raise ValueError(f"--memory: the agent {agent!r} keeps no memory of a home")
     elif getattr(args, "subtask_budget", None) is not None:
         raise ValueError("--subtask-budget is for multi-goal sets (imgnav episodes --goals N)")
+    elif getattr(args, "memory", False):
+        raise ValueError("--memory is for multi-goal sets (imgnav episodes --goals N)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     selected: list[Episode | SequenceEpisode] = list(es.episodes)
@@ -626,6 +631,12 @@ def run_evaluation(
     if multi and {r.get("subtask_budget") for r in done.values()} - {budget}:
         raise ValueError(
             f"{out / RECORDS} holds sequences run with another --subtask-budget than {budget}; "
+            "use another --out or --overwrite"
+        )
+    memory = multi and multigoal.uses_memory(args)
+    if multi and {bool(r.get("memory", False)) for r in done.values()} - {memory}:
+        raise ValueError(
+            f"{out / RECORDS} holds sequences run {'without' if memory else 'with'} --memory; "
             "use another --out or --overwrite"
         )
     todo = [e for e in selected if e.episode_id not in done]

@@ -42,6 +42,7 @@ def test_variants_map_to_config():
 
 class FakeOracle:
     start_pose_world = Pose2D(1.0, 0.0, 0.0)
+    frame_world = start_pose_world  # the agent's frame is the start's (a single-goal run)
     pose_world = Pose2D(1.0, 4.5, 0.0)  # 3 m west of the goal footprint (4..5, 4..5)
 
     def __init__(self):
