@@ -38,6 +38,13 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    # torch's OpenMP threads sleep, not spin, while they wait, in every command (before the
+    # parser imports a subcommand that may import torch): `imgnav eval` runs a worker per core
+    # beside the simulator's renderer, and spinning threads that lose their core stall the others
+    # (console.agents.passive_openmp_wait; an explicit OMP_WAIT_POLICY wins)
+    from console.agents import passive_openmp_wait
+
+    passive_openmp_wait()
     # Import only the chosen subcommand's module (cheap start, optional deps stay optional).
     chosen = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(only=chosen if chosen in COMMANDS else None)
