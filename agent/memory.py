@@ -3,10 +3,15 @@
 A home robot is asked for one object after another in the same home. ``HomeMemory`` is what the
 Mod-IIN agent carries from one goal to the next:
 
-* the map (``agent.mapping.GridMap``): obstacles, the explored and visited area, collision marks
-  and given-up frontiers. The goal layer and the two candidate blacklists belong to the goal that
-  made them (a candidate rejected for the couch says nothing about the plant) and are cleared
-  when the next goal begins;
+* the map (``agent.mapping.GridMap``): its geometry, i.e. obstacles, the visited area and
+  collision marks, which plan every later goal's paths. What a search made belongs to the goal
+  that made it and is cleared when the next goal begins: the goal layer and the two candidate
+  blacklists (a candidate rejected for the couch says nothing about the plant), and the explored
+  area with its given-up frontiers: "explored" means "looked over for this goal", and a room
+  looked over for the couch was not looked over for the plant. Carried over, it left a later
+  goal that the keyframes did not recall with no frontier from its first step: it stopped as
+  exhausted after a few dozen steps (3 of the first 12 later goals on valseq30,
+  docs/experiments/memory.md). A goal the keyframes recall is reached without exploring either way;
 * keyframes: frames seen while searching, whatever the goal was, each kept as its keypoints,
   descriptors (float16), image size, the pose it was taken from, and each keypoint's 3D point in
   the run frame, lifted from that frame's depth exactly as the localiser lifts a live match
@@ -343,7 +348,7 @@ class HomeMemory:
 
     def begin_goal(self, mapping: MappingConfig, matcher: str | None = None) -> GridMap:
         """A new goal begins: forget keyframes older than ``max_age_goals`` goals and the last
-        goal's candidate layers; returns the remembered map (a new one for the first goal).
+        goal's candidate and search layers; returns the remembered map (a new one for the first goal).
         ``mapping`` must be the config the map was made with, and ``matcher`` (the agent's, None:
         none) the one whose descriptors are kept: a clear error otherwise, before the first step."""
         if self.grid is not None and self.grid.config != mapping:
@@ -358,9 +363,10 @@ class HomeMemory:
         if self.grid is None:
             self.grid = GridMap(mapping)
         else:
-            # the goal cells and the rejected candidates belong to the goal that made them
+            # the goal cells, the rejected candidates and the search (explored area, given-up
+            # frontiers) belong to the goal that made them; the geometry stays (module docstring)
             L = self.grid.layers
-            for layer in (L.goal, L.blacklist, L.potential_blacklist):
+            for layer in (L.goal, L.blacklist, L.potential_blacklist, L.explored, L.frontier_blacklist):
                 layer[:] = False
         return self.grid
 

@@ -216,7 +216,7 @@ def test_the_memory_is_bounded_in_count_and_in_age():
     assert len(mem) == 0 and mem.grid is None and mem.goal_index == -1 and mem.goals == []
 
 
-def test_a_new_goal_keeps_the_map_but_not_the_last_goals_goal_cells_and_blacklists():
+def test_a_new_goal_keeps_the_maps_geometry_but_not_the_last_goals_search():
     mem = HomeMemory()
     mapping = AgentConfig().mapping
     grid = mem.begin_goal(mapping)
@@ -227,10 +227,15 @@ def test_a_new_goal_keeps_the_map_but_not_the_last_goals_goal_cells_and_blacklis
     grid.set_goal_cells(cells)
     grid.blacklist_cells(cells, 0.3)
     grid.blacklist_cells(cells, 0.3, layer="potential_blacklist")
-    before = {n: getattr(grid.layers, n).copy() for n in ("obstacle", "explored", "collision")}
+    grid.mark_visited((0.0, 0.0), (0.5, 0.0))
+    grid.blacklist_disk((1.0, 1.0), 0.5, layer="frontier_blacklist")
+    assert grid.layers.explored.any() and grid.layers.frontier_blacklist.any()
+    before = {n: getattr(grid.layers, n).copy() for n in ("obstacle", "visited", "collision")}
     assert mem.begin_goal(mapping) is grid
     L = grid.layers
     assert not (L.goal.any() or L.blacklist.any() or L.potential_blacklist.any())
+    # the last goal's search: what it looked over and the frontiers it gave up
+    assert not (L.explored.any() or L.frontier_blacklist.any())
     assert all(np.array_equal(getattr(L, n), v) and v.any() for n, v in before.items())
     with pytest.raises(ValueError, match="mapping config"):
         mem.begin_goal(replace(mapping, resolution_m=0.1))
@@ -363,8 +368,8 @@ def test_a_goal_seen_before_is_localised_from_memory_and_approached_without_expl
     assert b[0].mode == Mode.APPROACH.value and b[0].candidate_id is not None
     assert {r.mode for r in b} <= {"approach", "stopped"}
     assert b[-1].event == "stop_at_goal" and world.distance_to_goal() < 1.0
-    # the map carried over: the first step of goal B already knows where goal A ended
-    assert b[0].map is not None and b[0].map.explored.sum() >= a[-1].map.explored.sum()
+    # the map's geometry carried over: the first step of goal B already has goal A's obstacles
+    assert b[0].map is not None and b[0].map.obstacle.sum() >= a[-1].map.obstacle.sum()
     assert home.goal_index == 1 and home.summary()["goals"][1]["recalled_views"] >= 1
 
 
