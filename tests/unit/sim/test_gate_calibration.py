@@ -117,3 +117,108 @@ def test_gate_report_counts_what_each_stage_would_drop(tmp_path: Path) -> None:
     # >= tau/2 with the halved thresholds (10, 3): 40 has exit 2 < 3, 80 passes (15 >= 10, 9 >= 3)
     assert "frames >= 0.5 tau: 3; dropped by the first stage 0, by the exit stage 1, by either 1 (33.3%)" in lines[2]
     assert "every layer would run on 50.0% of the frames (first stage alone: 75.0%)" in lines[3]
+
+
+def test_recorded_frames_are_read_at_the_setting_being_calibrated(tmp_path: Path) -> None:
+    """`gate_frames` recordings made with a search setting hold frames of both settings (each with
+    its own size): the full setting's calibration reads the full ones, `--search` the search ones;
+    recordings from before the search setting hold full frames only."""
+    from agent.reid.base import Matches
+
+    seen: list[tuple[int, tuple[int, int]]] = []
+
+    class Sized:
+        """Scores a frame by its keypoint count and keeps the size each frame came with."""
+
+        exit_scores = None
+
+        def match(self, goal, obs):
+            seen.append((len(obs), obs.image_size_wh))
+            i = np.arange(len(obs), dtype=np.int64)
+            return Matches(i, i, np.full(len(obs), 0.5, np.float32))
+
+    rng = np.random.default_rng(0)
+    n_kp = np.array([4, 3, 2, 1], np.int32)
+    kw = dict(
+        goal_kp=rng.random((5, 2), dtype=np.float32),
+        goal_desc=rng.random((5, 8)).astype(np.float16),
+        goal_size_wh=np.array([640, 640], np.float32),
+        kp=rng.random((4, 4, 2), dtype=np.float32),
+        desc=rng.random((4, 4, 8)).astype(np.float16),
+        n_kp=n_kp,
+        size_wh=np.array([360, 640], np.float32),
+        full=np.zeros(4, np.float32),
+    )
+    new, old = tmp_path / "new", tmp_path / "old"
+    new.mkdir()
+    old.mkdir()
+    np.savez_compressed(
+        new / "train-s0-0000-0.npz",
+        frame_size_wh=np.array([[270, 480], [360, 640], [270, 480], [360, 640]], np.float32),
+        search=np.array([True, False, True, False]),
+        **kw,
+    )
+    np.savez_compressed(old / "train-s0-0001-0.npz", **kw)
+    full, _, _, episodes = gc.frames_from_recordings([str(new)], Sized(), 0.82)
+    assert full.tolist() == [1.5, 0.5] and episodes == 1 and seen == [(3, (360, 640)), (1, (360, 640))]
+    seen.clear()
+    search, _, exit_, _ = gc.frames_from_recordings([str(new)], Sized(), 0.82, search=True)
+    assert search.tolist() == [2.0, 1.0] and seen == [(4, (270, 480)), (2, (270, 480))] and np.isnan(exit_).all()
+    assert len(gc.frames_from_recordings([str(old)], Sized(), 0.82, search=True)[0]) == 0
+    assert gc.frames_from_recordings([str(old)], Sized(), 0.82)[0].tolist() == [2.0, 1.5, 1.0, 0.5]
+
+
+@pytest.mark.slow
+def test_calibrate_search_writes_the_block_the_agent_reads(tmp_path: Path, monkeypatch) -> None:
+    """`imgnav calibrate --search`: tau of frames at the search setting against goals at the full
+    one, into the file's search block (the rest kept); `--gate --search`: its gate stages into the
+    block; the agent's search setting then reads them. A full calibration afterwards keeps the block."""
+    from agent.reid.identifier import resolve_search
+    from sim.evaluation.calibrate import calibrate_matcher
+
+    cache = tmp_path / "images"
+    cache.mkdir()
+    entries = []
+    for name, img in (("astro", skimage.data.astronaut()), ("coffee", skimage.data.coffee())):
+        for k, (x0, y0) in enumerate(((0, 0), (40, 30), (80, 10))):
+            write_rgb(cache / f"{name}_{k}.png", cv2.resize(img[y0 : y0 + 300, x0 : x0 + 300], (256, 256)))
+            entries.append({"path": f"{name}_{k}.png", "instance": name, "category": "tv"})
+    cal = tmp_path / "xfeat_lighterglue_{kind}.json"
+    for kind, tau in (("conf", 20.0), ("count", 10.0)):
+        Path(str(cal).format(kind=kind)).write_text(
+            json.dumps({"matcher": "xfeat_lighterglue", "score": kind, "tau": tau, "gate_threshold": 7.0})
+        )
+    monkeypatch.setattr(
+        "agent.reid.identifier.calibration_path", lambda matcher, kind: Path(str(cal).format(kind=kind))
+    )
+    out = tmp_path / "out"
+    out.mkdir()
+    args = argparse.Namespace(
+        matcher=["xfeat_lighterglue"], config="sim", threads=1, max_negatives=0, seed=0, scene_set=500,
+        no_write_agent=False, ray=None, search=True, search_side=320, search_keypoints=256, gate_negatives=100,
+        gate_records=[], gate_frames=[], gate_max_drop=0.01,
+    )  # fmt: skip
+    res = calibrate_matcher("xfeat_lighterglue", entries, cache, out, args)["conf"]
+    written = json.loads(Path(str(cal).format(kind="conf")).read_text())
+    block = written["search"]
+    assert (written["tau"], written["gate_threshold"]) == (20.0, 7.0)  # the full setting untouched
+    assert (block["max_side_px"], block["max_keypoints"], block["goal_max_side_px"], block["goal_max_keypoints"]) == (
+        320, 256, 640, 1024,
+    )  # fmt: skip
+    assert block["tau"] == res["tau"] > 0 and block["image_side_px"] == [128]  # 256 px images at half the side
+    assert (out / "xfeat_lighterglue_search_pr.png").is_file()
+    gate = gc.calibrate_gate(entries, cache, out, args)["xfeat_lighterglue"]["conf"]
+    block = json.loads(Path(str(cal).format(kind="conf")).read_text())["search"]
+    assert block["tau"] == res["tau"] and block["gate_threshold"] == gate["threshold"]
+    assert block["gate_exit_threshold"] == gate["exit_threshold"] and block["gate_exit_layer"] == 2
+    assert (out / "xfeat_lighterglue_conf_search_gate.png").is_file()
+    cfg = ReIDConfig(calibration_file=str(cal).format(kind="conf"), search_max_side_px=320, search_max_keypoints=256)
+    s = resolve_search(cfg)
+    assert s is not None and (s.tau, s.gate_threshold, s.exit_threshold) == (
+        res["tau"], gate["threshold"], gate["exit_threshold"],
+    )  # fmt: skip
+    # the full setting calibrated again: its tau rewritten, the search block kept
+    args.search = False
+    calibrate_matcher("xfeat_lighterglue", entries, cache, out, args)
+    again = json.loads(Path(str(cal).format(kind="conf")).read_text())
+    assert again["search"] == block and "gate_threshold" not in again
