@@ -67,6 +67,7 @@ import math
 import multiprocessing as mp
 import os
 import resource
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -367,14 +368,37 @@ def error_record(episode: Episode, agent: str, error: str) -> dict[str, Any]:
     }
 
 
+def _exit_with_parent(parent_pid: int, period_s: float = 1.0) -> None:
+    """End this worker when the evaluation that spawned it is gone (killed by a signal it could
+    not clean up after, or by SIGKILL): an orphaned worker would go on running its episode, a
+    sequence for minutes, on cores nobody uses its result from (the unit is run again on resume)."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(period_s)
+            if os.getppid() != parent_pid:
+                log.warning("the evaluation that started this worker is gone: stopping")
+                os._exit(3)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
 def _worker_main(
-    worker: int, episode_dir: str, agent: str, args: argparse.Namespace, fail_fast: bool, tasks, results
+    worker: int,
+    episode_dir: str,
+    agent: str,
+    args: argparse.Namespace,
+    fail_fast: bool,
+    tasks,
+    results,
+    parent_pid: int,
 ) -> None:
     """One worker process: runs the unit ids its ``tasks`` queue hands it (None: stop), keeping
     the last home built; puts ``(kind, worker, payload)`` on ``results``: ``ready`` once set up,
     ``record`` with ``(record, build seconds or None)`` per unit, ``fatal`` with the traceback of
     an exception that stops the run, ``done`` at the end."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    _exit_with_parent(parent_pid)
     cache = _HomeCache()
     try:
         spec = get_spec(agent)
@@ -488,7 +512,7 @@ def _run_workers(
     results = ctx.Queue()
     tasks = [ctx.Queue() for _ in range(n)]
     procs = [
-        ctx.Process(target=_worker_main, args=(w, episode_dir, agent, args, fail_fast, tasks[w], results))
+        ctx.Process(target=_worker_main, args=(w, episode_dir, agent, args, fail_fast, tasks[w], results, os.getpid()))
         for w in range(n)
     ]
     ran_out: dict[int, float] = {}  # worker -> when it was told nothing is left
