@@ -26,15 +26,6 @@ docs/experiments/), each with its setting in ``PolicyConfig``:
   ``agent.shortlist``) are scored again with the full matcher and their matches localised as
   potential evidence, verified by approach like any other.
 
-Search cheaply, verify richly (issue 32; ``ReIDConfig.search_max_side_px`` /
-``search_max_keypoints``): while searching (look-around, explore, rescan) a frame is re-identified
-at the search setting (fewer pixels and keypoints; the full setting unless configured), near a
-candidate and in the second look at the full one. Each frame's score is read against the tau of the
-setting that scored it (detection, potential evidence; the record's ``reid_tau`` and
-``reid_setting``), and the evidence kept from it (its goal points' score, the candidates' views and
-best scores, what the verify ring and the last resort compare) is on the full setting's scale, as
-the same share of tau (``agent.reid.identifier.on_full_scale``).
-
 The candidate side (approach, verify, reject, last resort, steering) is a component,
 ``agent.approach.CandidateNavigator``: it takes the step's scene and the policy state and returns
 the decision and the next state. Rejected and unreachable candidates are blacklisted on the map
@@ -74,7 +65,7 @@ from agent.modes import Decision, Mode, PolicyState, RescanState
 from agent.motion import after_action, move_key
 from agent.planner import FMMPlanner, Plan, PlanError
 from agent.reid.base import Matcher
-from agent.reid.identifier import ReIdentifier, ReIDResult, SettingName, on_full_scale, resolve_tau
+from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
 from agent.shortlist import FrameShortlist
 from agent.types import Action, AgentRecord, Observation, Pose2D
@@ -117,10 +108,6 @@ class ModIINAgent:
         # potential evidence (frames above potential_tau_ratio x tau) must get past the gate too
         floor = pc.potential_tau_ratio if pc.reid_source == "matcher" and pc.potential_tau_ratio < 1.0 else 1.0
         self.reid = ReIdentifier(config.reid, matcher, min_score_ratio=floor) if needs_matcher else None
-        # the tau each setting's scores are read against: searching frames may be scored at the
-        # reduced search setting, whose scores have their own scale (its own calibration)
-        search = self.reid.search if self.reid is not None else None
-        self.search_tau = search.tau if search is not None and search.name == "search" else self.tau
         self.segmenter = (
             GoalSegmenter(config.segmentation, goal_mask_fn) if pc.localisation_source == "goal_mask" else None
         )
@@ -131,7 +118,6 @@ class ModIINAgent:
         self._goal_image: np.ndarray | None = None
         self._goal_mask: Pending | None = None
         self.home_memory = home_memory
-        self._check_memory_setting()
 
     # --- Agent protocol -------------------------------------------------------------
 
@@ -152,7 +138,6 @@ class ModIINAgent:
         goal scored against the remembered keyframes before the first step."""
         self._goal_image = goal_image
         home = self.home_memory
-        self._check_memory_setting()
         if home is None:
             self.grid = GridMap(self.config.mapping)
         else:
@@ -209,24 +194,16 @@ class ModIINAgent:
         # frame gets the full matcher, because close views of a large object share few
         # mutually-nearest descriptors with the goal photo (train: a frame scoring 141 with a
         # gate score of 23, the object covering half the image) and those frames decide.
-        # Search cheaply, verify richly: searching frames at the search setting (the full one
-        # unless ``reid.search_max_side_px`` / ``search_max_keypoints`` reduce it), the rest at the
-        # full setting.
         searching = self._state.mode in (Mode.LOOK_AROUND, Mode.EXPLORE, Mode.RESCAN)
-        setting: SettingName = "search" if searching else "full"
-        result = self.reid.compare(obs.rgb, use_gate=searching, setting=setting) if self.reid is not None else None
+        result = self.reid.compare(obs.rgb, use_gate=searching) if self.reid is not None else None
         if pc.reid_source == "oracle":
             assert self.oracle_reid is not None
             detected = bool(self.oracle_reid(obs))
-            score = frame_score = 1.0 if detected else 0.0
-            frame_tau = self.tau
+            score = 1.0 if detected else 0.0
         else:
             assert result is not None and self.tau is not None
-            # read against the tau of the setting that scored the frame; the evidence the policy
-            # keeps (localised points, candidates' views) is on the full setting's scale
-            frame_score, frame_tau = result.score, self._tau_of(result)
-            detected = frame_score >= frame_tau
-            score = on_full_scale(frame_score, frame_tau, self.tau)
+            score = result.score
+            detected = score >= self.tau
         timings["reid"] = _ms(t)
         if result is not None:
             timings["reid_extract"] = result.extract_ms
@@ -239,8 +216,8 @@ class ModIINAgent:
             not detected
             and pc.reid_source == "matcher"
             and pc.potential_tau_ratio < 1.0
-            and frame_tau is not None
-            and frame_score >= pc.potential_tau_ratio * frame_tau
+            and self.tau is not None
+            and score >= pc.potential_tau_ratio * self.tau
         )
         if potential or detected:
             self._localise(obs, result, score)
@@ -290,12 +267,11 @@ class ModIINAgent:
             reason=decision.reason,
             event=decision.event.value,
             context=tuple(n.context.value for n in decision.context),
-            reid_score=frame_score,
-            reid_tau=frame_tau,
+            reid_score=score,
+            reid_tau=self.tau,
             reid_full_matcher=result.full_matcher if result is not None else None,
             reid_gate_score=result.gate_score if result is not None else None,
             reid_exit_score=result.exit_score if result is not None else None,
-            reid_setting=result.setting if result is not None else None,
             goal_detected=detected,
             matches_goal_xy=result.goal_xy.astype(np.float32) if result is not None else _EMPTY2,
             matches_obs_xy=result.obs_xy.astype(np.float32) if result is not None else _EMPTY2,
@@ -320,29 +296,6 @@ class ModIINAgent:
 
     def _scene(self, obs: Observation) -> Scene:
         return Scene(obs, self.grid, self.memory)
-
-    def _tau_of(self, result: ReIDResult) -> float:
-        """The tau a frame's score is read against: that of the setting that scored it."""
-        tau = self.search_tau if result.setting == "search" else self.tau
-        assert tau is not None  # matcher re-ID resolved both
-        return tau
-
-    def _on_full_scale(self, result: ReIDResult) -> float:
-        """A frame's score as evidence: on the full setting's scale (``on_full_scale``)."""
-        assert self.tau is not None
-        return on_full_scale(result.score, self._tau_of(result), self.tau)
-
-    def _check_memory_setting(self) -> None:
-        """The memory of a home keeps searching frames as keyframes and scores a new goal against
-        them with the identifier's full-setting thresholds and tau (``HomeMemory.localise``): with
-        a reduced search setting those keyframes are on the search setting's scale, which the
-        memory does not read yet, so the two are refused together rather than mixed."""
-        if self.home_memory is not None and self.reid is not None and self.reid.search is not self.reid.full:
-            raise ValueError(
-                "a home memory (agent.memory) scores its keyframes on the full setting's scale, but searching "
-                "frames (its keyframes) are at the reduced search setting (reid.search_max_side_px / "
-                "search_max_keypoints): use the full setting while searching with a home memory"
-            )
 
     # --- localisation and candidates ---------------------------------------------------
 
@@ -538,12 +491,11 @@ class ModIINAgent:
         self._set(rechecked=True)
         frames = self.shortlist.take()
         scored = [
-            (kept, self.reid.compare(kept.rgb, use_gate=False, setting="full"))
+            (kept, self.reid.compare(kept.rgb, use_gate=False))
             for _, kept in frames
             if self.localiser.view(kept.step) is None
         ]
-        scored_full = [(kept, r, self._on_full_scale(r)) for kept, r in scored]
-        scores = [s for kept, r, s in scored_full if s > 0 and len(self._localise(kept, r, s))]
+        scores = [r.score for kept, r in scored if r.score > 0 and len(self._localise(kept, r, r.score))]
         best = max(scores) if scores else None
         log.info(
             "exploration exhausted with no candidate: second look, %d of the %d frames kept added points",

@@ -279,12 +279,7 @@ class AgentRecord:
         decided in (``agent.events.Context``: the last resort, the deadline, the second look, ...);
         ``reason`` is written from them for people, and nothing parses ``reason``.
     reid_score: score of this frame against the goal (None if re-ID did not run; 0 when the
-        gate skipped the full matcher), on the scale of the setting that scored it.
-    reid_tau: the tau that score is read against: the tau of that setting.
-    reid_setting: the setting that extracted and scored the frame (``agent.reid.identifier``):
-        ``full``, or ``search`` (searching frames at the reduced search setting, with its own tau);
-        None: no re-ID. The candidates' scores (``CandidateInfo.best_score``) are all on the full
-        setting's scale (a search frame's score as the same share of the full tau).
+        gate skipped the full matcher).
     reid_full_matcher: whether the full (learned) matcher ran on this frame (None: no re-ID).
     reid_gate_score: the cheap first-stage score that decided it (None: gate off or no re-ID).
     reid_exit_score: the gate's second stage, LighterGlue's score after its exit layer (None: not
@@ -311,7 +306,6 @@ class AgentRecord:
     reid_full_matcher: bool | None = None
     reid_gate_score: float | None = None
     reid_exit_score: float | None = None
-    reid_setting: str | None = None
     goal_detected: bool = False
     matches_goal_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
     matches_obs_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))

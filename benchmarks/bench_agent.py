@@ -1,7 +1,6 @@
 """Median per-step latency of the Mod-IIN agent and of each of its parts on val episodes.
 
-    .venv/bin/python benchmarks/bench_agent.py [--episodes DIR] [--count 3] [--steps 150] [--threads 2] \
-        [--search-side 480 --search-keypoints 512 [--search-tau T --search-gate G --search-exit E]] [--no-gate-variants]
+    .venv/bin/python benchmarks/bench_agent.py [--episodes DIR] [--count 3] [--steps 150] [--threads 2]
 
 Runs the default agent (agent/configs/sim.yaml: XFeat + LighterGlue, re-ID gate, early stop as
 configured) through the real simulator on the first ``--count`` episodes of a val episode set (a small one is
@@ -10,12 +9,6 @@ Shadow agents, identical but without LighterGlue's early stop ("all layers"), wi
 stage ("no exit stage") and without the gate ("no gate, all layers": the agent before issue 9), act on
 the very same observations right
 after it (their actions are discarded), so all are measured back to back on the same frames.
-Search cheaply, verify richly (issue 32): when the default agent searches at the full setting, a
-shadow searching at ``--search-side`` / ``--search-keypoints`` (its tau and gate thresholds from the
-calibration file's search block, or ``--search-tau`` / ``--search-gate`` / ``--search-exit``); when
-the default already searches at a reduced setting, a shadow at the full setting ("full setting").
-``--no-gate-variants`` leaves out the gate's shadows. Each agent decides on its own (a shadow may be
-approaching where the default explores), so the settings' shares of frames are printed too.
 Prints, for each, the median milliseconds per step of the whole ``act`` (total) and its parts:
 mapping, reid (feature extraction, gate, full matching), localisation and planning, the ratios
 default / shadow, and the share of frames on which the full matcher ran. The simulator's render
@@ -44,12 +37,6 @@ def main() -> int:
     p.add_argument("--steps", type=int, default=150)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--config", default="sim")
-    p.add_argument("--search-side", type=int, default=None, help="the search shadow's longer side")
-    p.add_argument("--search-keypoints", type=int, default=None, help="the search shadow's keypoints")
-    p.add_argument("--search-tau", type=float, default=None, help="its tau (default: the calibration's search block)")
-    p.add_argument("--search-gate", type=float, default=None, help="its first-stage threshold")
-    p.add_argument("--search-exit", type=float, default=None, help="its exit-stage threshold")
-    p.add_argument("--no-gate-variants", action="store_true", help="without the no-exit-stage and no-gate shadows")
     args = p.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -68,48 +55,21 @@ def main() -> int:
 
     cfg = replace(cfg, reid=replace(cfg.reid, num_threads=args.threads))
     agent = ModIINAgent(cfg)
-    # the shadows: the same agent at the other search setting, and without what issue 9 added,
-    # acting on the very same frames
+    # the shadows: the same agent without what issue 9 added, acting on the very same frames
     variants = {"default": cfg}
-    searched = agent.reid is not None and agent.reid.search is not agent.reid.full
-    if searched:
-        unset = dict(search_max_side_px=None, search_max_keypoints=None, search_tau=None)
-        unset.update(search_gate_threshold=None, search_gate_exit_threshold=None)
-        variants["full setting"] = replace(cfg, reid=replace(cfg.reid, **unset))
-    elif args.search_side is not None or args.search_keypoints is not None:
-        search = replace(
-            cfg.reid,
-            search_max_side_px=args.search_side,
-            search_max_keypoints=args.search_keypoints,
-            search_tau=args.search_tau,
-            search_gate_threshold=args.search_gate,
-            search_gate_exit_threshold=args.search_exit,
-        )
-        side = search.search_max_side_px or search.max_side_px
-        variants[f"search {side}/{search.search_max_keypoints or search.obs_max_keypoints}"] = replace(cfg, reid=search)
-    if cfg.reid.gate and cfg.reid.gate_exit_layer and not args.no_gate_variants:
+    if cfg.reid.gate and cfg.reid.gate_exit_layer:
         variants["no exit stage"] = replace(cfg, reid=replace(cfg.reid, gate_exit_layer=0))
-    if cfg.reid.gate and not args.no_gate_variants:
+    if cfg.reid.gate:
         variants["no gate"] = replace(cfg, reid=replace(cfg.reid, gate=False))
     shadows = {name: ModIINAgent(c) for name, c in variants.items() if name != "default"}
-    for name, shadow in shadows.items():
-        if name.startswith("search") and (shadow.reid is None or shadow.reid.search is shadow.reid.full):
-            print(
-                f"{name}: the calibration has no search block for it (`imgnav calibrate --search`); "
-                "give --search-tau (and --search-gate / --search-exit)",
-                file=sys.stderr,
-            )
-            return 2
     samples = {name: {k: [] for k in PARTS} for name in variants}
     full_runs = {name: 0 for name in samples}
-    search_frames = {name: 0 for name in samples}
 
     def keep(name: str, rec) -> None:
         for k in PARTS:
             if rec is not None and k in rec.timings_ms:
                 samples[name][k].append(float(rec.timings_ms[k]))
         full_runs[name] += bool(rec is not None and rec.reid_full_matcher)
-        search_frames[name] += bool(rec is not None and rec.reid_setting == "search")
 
     class Timings:
         """The driving agent's record, and each shadow agent on the very same frame, back to back
@@ -151,19 +111,9 @@ def main() -> int:
     for w in worlds.values():
         w.close()
     n = len(samples["default"]["total"])
-    for name in variants:
-        a = agent if name == "default" else shadows[name]
-        s = a.reid.search if a.reid is not None else None
-        at = "the full setting" if s is None or s.name == "full" else f"{s.max_side_px} px / {s.max_keypoints}"
-        thr = (
-            ""
-            if s is None or s.name == "full"
-            else f" (tau {s.tau:.4g}, gate {s.gate_threshold}, exit {s.exit_threshold})"
-        )
-        print(f"  {name}: searching frames at {at}{thr}")
     print(
-        f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.max_side_px} px, {cfg.reid.obs_max_keypoints} keypoints per "
-        f"frame, {cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, "
+        f"Mod-IIN agent, {cfg.reid.matcher} ({cfg.reid.obs_max_keypoints} keypoints per frame, "
+        f"{cfg.reid.goal_max_keypoints} goal), gate {'on' if cfg.reid.gate else 'off'}, "
         f"torch threads {args.threads}, {n} steps of {min(args.count, len(es.episodes))} "
         f"{es.split} episodes; every variant on the same frames, back to back"
     )
@@ -193,10 +143,6 @@ def main() -> int:
         + ", ".join(
             f"{full_runs[name]} of {n} frames ({100 * full_runs[name] / max(n, 1):.1f}%) {name}" for name in names
         )
-    )
-    print(
-        "  frames scored at the search setting: "
-        + ", ".join(f"{search_frames[name]} ({100 * search_frames[name] / max(n, 1):.1f}%) {name}" for name in names)
     )
     if sim_ms:
         print(

@@ -143,8 +143,6 @@ class StepRow:
     reid_full_matcher: bool | None = agent_field("reid_full_matcher", BOOL)  # False: the gate skipped it
     reid_gate_score: float | None = agent_field("reid_gate_score", REAL)  # the gate's cheap score (None: gate off)
     reid_exit_score: float | None = agent_field("reid_exit_score", REAL)  # LighterGlue's score after its exit layer
-    # the re-ID setting that scored the frame: "full" or "search" (reid_score and reid_tau are on its scale)
-    reid_setting: str | None = agent_field("reid_setting", TEXT)
     event: str | None = agent_field("event", TEXT)  # the decision's event (agent.events.Event value)
     # what it was decided in (agent.events.Context values, outermost first)
     context: tuple[str, ...] | None = agent_field("context", NAMES)

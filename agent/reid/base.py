@@ -102,28 +102,3 @@ def resize_max_side(rgb: np.ndarray, max_side_px: int) -> tuple[np.ndarray, floa
     nw, nh = max(1, int(round(w / s))), max(1, int(round(h / s)))
     out = cv2.resize(rgb, (nw, nh), interpolation=cv2.INTER_AREA)
     return out, math.sqrt((w / nw) * (h / nh))
-
-
-def extract_at(matcher: Matcher, rgb: np.ndarray, max_side_px: int, max_keypoints: int) -> Features:
-    """``rgb``'s features at a longer side of at most ``max_side_px`` and at most ``max_keypoints``,
-    with keypoints and image size in ``rgb``'s own pixels (what localisation projects through depth).
-
-    A matcher downscales to its own ``max_side_px``; a smaller side is reached by downscaling here
-    first (``resize_max_side``, as the matcher would) and scaling the keypoints back by the same
-    factor. The matcher's ``extra`` (e.g. LighterGlue's keypoints in the image it saw, and that
-    image's size) stays as it made it. At the matcher's own side or above, or for an image already
-    small enough, this is exactly ``matcher.extract(rgb, max_keypoints)``.
-    """
-    own = getattr(matcher, "max_side_px", None)
-    if own is not None and max_side_px >= own:
-        return matcher.extract(rgb, max_keypoints)
-    small, factor = resize_max_side(rgb, max_side_px)
-    if factor == 1.0:
-        return matcher.extract(rgb, max_keypoints)
-    f = matcher.extract(small, max_keypoints)
-    return Features(
-        keypoints_xy=(np.asarray(f.keypoints_xy, np.float32) * np.float32(factor)).astype(np.float32),
-        descriptors=f.descriptors,
-        image_size_wh=(int(rgb.shape[1]), int(rgb.shape[0])),
-        extra=f.extra,
-    )

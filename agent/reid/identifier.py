@@ -5,14 +5,14 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from agent.reid.base import Features, Matcher, Matches, ScoreKind, extract_at, score
+from agent.reid.base import Features, Matcher, Matches, ScoreKind, score
 from agent.reid.gate import MNNGate
 
 log = logging.getLogger(__name__)
@@ -20,7 +20,6 @@ log = logging.getLogger(__name__)
 _EMPTY_XY = np.zeros((0, 2), np.float32)
 
 MatcherName = Literal["xfeat_lighterglue", "aliked_lightglue", "sift"]
-SettingName = Literal["full", "search"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,37 +50,6 @@ class ReIDConfig:
     gate_exit_layer: int = 2
     # explicit threshold, else ``gate_exit_threshold`` of the calibration file
     gate_exit_threshold: float | None = None
-    # Search cheaply, verify richly (issue 32, docs/experiments/reid-search.md): while the agent
-    # searches (looks around, explores, rescans) each frame is extracted at this longer side and
-    # keypoint count (None: the full setting's ``max_side_px`` / ``obs_max_keypoints``; neither may
-    # exceed it) and matched against the goal's full features; near a candidate and in the second
-    # look, frames get the full setting. A search frame's score has its own scale, so the setting
-    # has its own tau and gate thresholds: these, else the calibration file's ``search`` block
-    # (``imgnav calibrate --search``), which must be for this setting. With the search setting
-    # equal to the full one there is one setting and these three stay unset.
-    search_max_side_px: int | None = None
-    search_max_keypoints: int | None = None
-    search_tau: float | None = None
-    search_gate_threshold: float | None = None
-    search_gate_exit_threshold: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class ReIDSetting:
-    """What a frame is extracted at, and the thresholds its score is read against.
-
-    ``full``: the deployment's ``max_side_px`` and ``obs_max_keypoints``, the scale of ``tau``;
-    ``search``: the reduced setting of searching frames, with the tau of its own calibration.
-    tau: the setting's detection threshold (None on the identifier's full setting, whose tau the
-    policy resolves itself: ``resolve_tau``). gate_threshold / exit_threshold: the gate's two
-    stages on this setting's frames (None: off)."""
-
-    name: SettingName
-    max_side_px: int
-    max_keypoints: int
-    tau: float | None = None
-    gate_threshold: float | None = None
-    exit_threshold: float | None = None
 
 
 def calibration_path(matcher: str, kind: str) -> Path:
@@ -118,113 +86,8 @@ def resolve_tau(config: ReIDConfig) -> float:
     return float(_calibration(config)[1]["tau"])
 
 
-def search_setting_px(config: ReIDConfig) -> tuple[int, int]:
-    """The search setting's (longer side, keypoints), the full setting's where unset; a clear error
-    when it asks for more than the full setting."""
-    side = config.max_side_px if config.search_max_side_px is None else int(config.search_max_side_px)
-    kp = config.obs_max_keypoints if config.search_max_keypoints is None else int(config.search_max_keypoints)
-    if not 0 < side <= config.max_side_px or not 0 < kp <= config.obs_max_keypoints:
-        raise ValueError(
-            f"reid.search_max_side_px {side} / search_max_keypoints {kp}: the search setting must be within the "
-            f"full one ({config.max_side_px} px, {config.obs_max_keypoints} keypoints)"
-        )
-    return side, kp
-
-
-def search_is_full(config: ReIDConfig) -> bool:
-    """The search setting is the full one: one setting, today's agent exactly."""
-    return search_setting_px(config) == (config.max_side_px, config.obs_max_keypoints)
-
-
-def _search_block(config: ReIDConfig) -> tuple[str, dict | None]:
-    """The calibration file's ``search`` block (None: it has none), checked against the configured
-    search setting and the full setting the goal is extracted at (a clear error when it is for
-    another)."""
-    path, data = _calibration(config)
-    where = f"{path} [search]"
-    block = data.get("search")
-    if block is None:
-        return where, None
-    side, kp = search_setting_px(config)
-    calibrated = (
-        block.get("max_side_px"),
-        block.get("max_keypoints"),
-        block.get("goal_max_side_px", config.max_side_px),
-        block.get("goal_max_keypoints", config.goal_max_keypoints),
-    )
-    wanted = (side, kp, config.max_side_px, config.goal_max_keypoints)
-    if tuple(int(v) for v in calibrated) != wanted:
-        raise ValueError(
-            f"{where} calibrates frames at {calibrated[0]} px / {calibrated[1]} keypoints against goals at "
-            f"{calibrated[2]} px / {calibrated[3]}, the config asks for {side} px / {kp} against {config.max_side_px} "
-            f"px / {config.goal_max_keypoints}: run `imgnav calibrate --search` for it, or set reid.search_tau"
-        )
-    return where, block
-
-
-def resolve_search(config: ReIDConfig) -> ReIDSetting | None:
-    """The search setting with its tau and the gate's thresholds as calibrated (not yet scaled to
-    potential evidence: ``ReIdentifier`` does that), or None: searching frames get the full setting.
-
-    None when the search setting is the full one, and (with a warning, as the gate when its
-    threshold is missing) when there is no explicit ``search_tau`` and the calibration file in force
-    has no ``search`` block (an operator's own calibration): without its tau a reduced frame's score
-    cannot be read, and the full setting is never wrong, only slower. A block made for another
-    setting is a clear error. The gate's stages follow today's rules on the block: off with a
-    warning when it has no threshold, or when an explicit ``search_tau`` is below the block's."""
-    explicit = (config.search_tau, config.search_gate_threshold, config.search_gate_exit_threshold)
-    if search_is_full(config):
-        if any(v is not None for v in explicit):
-            raise ValueError(
-                "reid.search_tau / search_gate_threshold / search_gate_exit_threshold are set but the search "
-                "setting is the full one (set reid.search_max_side_px or search_max_keypoints)"
-            )
-        return None
-    side, kp = search_setting_px(config)
-    if config.search_tau is not None:
-        tau = float(config.search_tau)
-    else:
-        where, block = _search_block(config)
-        if block is None:
-            log.warning(
-                "reid.search_max_side_px/search_max_keypoints ask for %d px / %d keypoints while searching, but %s "
-                "has no tau for them (run `imgnav calibrate --search`): the search setting is off, searching frames "
-                "get the full setting",
-                side,
-                kp,
-                where,
-            )
-            return None
-        tau = float(block["tau"])
-    return ReIDSetting(
-        "search",
-        side,
-        kp,
-        tau,
-        resolve_gate_threshold(config, "search"),
-        resolve_exit_threshold(config, "search"),
-    )
-
-
-def _in_force(config: ReIDConfig, setting: SettingName) -> tuple[float | None, float | None, float | None]:
-    """The explicit (tau, gate threshold, exit threshold) of a setting's config."""
-    if setting == "search":
-        return config.search_tau, config.search_gate_threshold, config.search_gate_exit_threshold
-    return config.tau, config.gate_threshold, config.gate_exit_threshold
-
-
-def _calibration_of(config: ReIDConfig, setting: SettingName) -> tuple[str, dict]:
-    """Where a setting's thresholds are calibrated: the file, or its ``search`` block ({} when none)."""
-    if setting == "search":
-        where, block = _search_block(config)
-        return where, {} if block is None else block
-    path, data = _calibration(config)
-    return str(path), data
-
-
-def resolve_gate_threshold(config: ReIDConfig, setting: SettingName = "full") -> float | None:
-    """The gate threshold in force (None: gate off), from the config or the calibration file (for
-    ``setting="search"``: ``search_gate_threshold`` or the file's ``search`` block).
+def resolve_gate_threshold(config: ReIDConfig) -> float | None:
+    """The gate threshold in force (None: gate off), from the config or the calibration file.
 
     The gate is calibrated for one tau (it keeps the frames that could reach it). A threshold
     from a calibration file therefore holds only for that file's tau or a higher one; with a
@@ -233,28 +96,21 @@ def resolve_gate_threshold(config: ReIDConfig, setting: SettingName = "full") ->
     """
     if not config.gate:
         return None
-    explicit_tau, explicit, _ = _in_force(config, setting)
-    if explicit is not None:
-        return float(explicit)
-    path, data = _calibration_of(config, setting)
+    if config.gate_threshold is not None:
+        return float(config.gate_threshold)
+    path, data = _calibration(config)
     if abs(float(data.get("gate_min_cosine", config.gate_min_cosine)) - config.gate_min_cosine) > 1e-9:
         raise ValueError(
             f"{path}: gate calibrated at min_cosine {data.get('gate_min_cosine')}, "
             f"the config asks for {config.gate_min_cosine}"
         )
     return _threshold_in_file(
-        explicit_tau,
-        path,
-        data,
-        "gate_threshold",
-        "the gate is off, every frame gets the full matcher",
-        "reid.tau" if setting == "full" else "reid.search_tau",
+        config, path, data, "gate_threshold", "the gate is off, every frame gets the full matcher"
     )
 
 
-def resolve_exit_threshold(config: ReIDConfig, setting: SettingName = "full") -> float | None:
-    """The exit stage's threshold in force (None: off), from the config or the calibration file
-    (for ``setting="search"``: ``search_gate_exit_threshold`` or the file's ``search`` block).
+def resolve_exit_threshold(config: ReIDConfig) -> float | None:
+    """The exit stage's threshold in force (None: off), from the config or the calibration file.
 
     Like the first stage's, it holds only for the tau it was calibrated for (or a higher one), at
     the layer it was calibrated at; otherwise the stage is off (with a warning), never wrong. Only
@@ -264,10 +120,9 @@ def resolve_exit_threshold(config: ReIDConfig, setting: SettingName = "full") ->
     if config.matcher != "xfeat_lighterglue":
         log.info("reid.gate_exit_layer: %s has no layers to stop after; the gate's exit stage is off", config.matcher)
         return None
-    explicit_tau, _, explicit = _in_force(config, setting)
-    if explicit is not None:
-        return float(explicit)
-    path, data = _calibration_of(config, setting)
+    if config.gate_exit_threshold is not None:
+        return float(config.gate_exit_threshold)
+    path, data = _calibration(config)
     if "gate_exit_threshold" in data and int(data.get("gate_exit_layer", -1)) != config.gate_exit_layer:
         log.warning(
             "%s: the exit stage was calibrated after layer %s, the config asks for %d: the exit stage is off",
@@ -276,29 +131,19 @@ def resolve_exit_threshold(config: ReIDConfig, setting: SettingName = "full") ->
             config.gate_exit_layer,
         )
         return None
-    return _threshold_in_file(
-        explicit_tau,
-        path,
-        data,
-        "gate_exit_threshold",
-        "the gate's exit stage is off",
-        "reid.tau" if setting == "full" else "reid.search_tau",
-    )
+    return _threshold_in_file(config, path, data, "gate_exit_threshold", "the gate's exit stage is off")
 
 
-def _threshold_in_file(
-    explicit_tau: float | None, path: str, data: dict, key: str, off: str, tau_key: str = "reid.tau"
-) -> float | None:
+def _threshold_in_file(config: ReIDConfig, path: Path, data: dict, key: str, off: str) -> float | None:
     """A gate stage's threshold from its calibration file: None (with a warning saying ``off``)
     when the file has none or the config's explicit tau is below the one it was calibrated for."""
     if key not in data:
         log.warning("reid.gate is on but %s has no %s (run `imgnav calibrate --gate`): %s", path, key, off)
         return None
-    if explicit_tau is not None and float(explicit_tau) < float(data["tau"]):
+    if config.tau is not None and float(config.tau) < float(data["tau"]):
         log.warning(
-            "%s %.4g is below the tau %.4g the %s in %s was calibrated for: %s",
-            tau_key,
-            explicit_tau,
+            "reid.tau %.4g is below the tau %.4g the %s in %s was calibrated for: %s",
+            config.tau,
             float(data["tau"]),
             key,
             path,
@@ -306,21 +151,6 @@ def _threshold_in_file(
         )
         return None
     return float(data[key])
-
-
-def on_full_scale(score: float, setting_tau: float, full_tau: float) -> float:
-    """A score read against ``setting_tau`` as the same share of the full setting's ``full_tau``:
-    the one scale of the policy's evidence (candidates' views, their best scores, the verify ring).
-    The score itself when the taus are equal; otherwise ``score x full_tau / setting_tau``, kept on
-    its side of tau (rounding never turns a detection into potential evidence or back)."""
-    if setting_tau == full_tau:
-        return score
-    scaled = score * (full_tau / setting_tau)
-    if score >= setting_tau and scaled < full_tau:
-        return float(full_tau)
-    if score < setting_tau and scaled >= full_tau:
-        return float(np.nextafter(full_tau, -np.inf))
-    return float(scaled)
 
 
 def matcher_key(config: ReIDConfig) -> tuple:
@@ -376,9 +206,6 @@ class ReIDResult:
     # the frame's own keypoints and descriptors, as extracted for this comparison (None: not
     # kept); the agent's memory of a home keeps them (``agent.memory``) without extracting twice
     features: Features | None = None
-    # the setting that extracted and scored the frame ("full", or "search": the reduced one of
-    # searching frames, whose score is read against the search tau)
-    setting: SettingName = "full"
 
 
 class ReIdentifier:
@@ -402,44 +229,24 @@ class ReIdentifier:
             log.warning(
                 "re-ID gate scaled to %.2f of tau: below the tau/2 its bound was measured from", min_score_ratio
             )
-        matcher_exit: int | None = getattr(self.matcher, "exit_layer", None)  # only LighterGlue has one
-        if config.gate_shadow and matcher_exit:
-            # shadow recordings (gate off) report the exit stage's score of every frame too
-            self.matcher.always_score_exit = True  # type: ignore[attr-defined]
+        base = resolve_gate_threshold(config)
+        self.gate_threshold = None if base is None else base * min_score_ratio
         self._gate = MNNGate(config.gate_min_cosine) if (config.gate or config.gate_shadow) else None
-        full = ReIDSetting(
-            "full",
-            config.max_side_px,
-            config.obs_max_keypoints,
-            gate_threshold=resolve_gate_threshold(config),
-            exit_threshold=resolve_exit_threshold(config),
-        )
-        self.full = self._in_force(full, min_score_ratio, matcher_exit)
-        search = resolve_search(config)
-        # searching frames: the search setting, or the full one (the same object) when it is the
-        # full one or off
-        self.search = self.full if search is None else self._in_force(search, min_score_ratio, matcher_exit)
-        # the full setting's thresholds, where the identifier is read as one setting (the memory's recall)
-        self.gate_threshold = self.full.gate_threshold
-        self.exit_threshold = self.full.exit_threshold
-
-    def _in_force(self, s: ReIDSetting, min_score_ratio: float, matcher_exit: int | None) -> ReIDSetting:
-        """A setting's gate thresholds as they act: both stages scaled by ``min_score_ratio`` (both
-        bounds are linear in the score); the exit stage off for a matcher without an exit layer."""
-        exit_base = s.exit_threshold
+        # the second stage, scaled like the first (its bound is linear in the score as well)
+        exit_base = resolve_exit_threshold(config)
+        matcher_exit: int | None = getattr(self.matcher, "exit_layer", None)  # only LighterGlue has one
         if exit_base is not None and matcher_exit is None:
             log.info("the injected matcher %s has no exit layer: the gate's exit stage is off", self.matcher.name)
             exit_base = None
-        if exit_base is not None and matcher_exit != self.config.gate_exit_layer:
+        if exit_base is not None and matcher_exit != config.gate_exit_layer:
             raise ValueError(
-                f"the re-ID gate's exit stage is calibrated after layer {self.config.gate_exit_layer}, the "
+                f"the re-ID gate's exit stage is calibrated after layer {config.gate_exit_layer}, the "
                 f"matcher exits after layer {matcher_exit} (agent.reid.identifier.make_matcher)"
             )
-        return replace(
-            s,
-            gate_threshold=None if s.gate_threshold is None else s.gate_threshold * min_score_ratio,
-            exit_threshold=None if exit_base is None else exit_base * min_score_ratio,
-        )
+        self.exit_threshold = None if exit_base is None else exit_base * min_score_ratio
+        if config.gate_shadow and matcher_exit:
+            # shadow recordings (gate off) report the exit stage's score of every frame too
+            self.matcher.always_score_exit = True  # type: ignore[attr-defined]
 
     def set_goal(self, goal_rgb: np.ndarray) -> Features:
         self.goal = self.matcher.extract(goal_rgb, self.config.goal_max_keypoints)
@@ -448,26 +255,19 @@ class ReIdentifier:
         log.debug("goal image: %d keypoints", len(self.goal))
         return self.goal
 
-    def extract(self, rgb: np.ndarray, setting: ReIDSetting | None = None) -> Features:
-        """A frame's features at ``setting`` (default the full one), keypoints in the frame's pixels."""
-        s = self.full if setting is None else setting
-        if s is self.full:
-            return self.matcher.extract(rgb, s.max_keypoints)
-        return extract_at(self.matcher, rgb, s.max_side_px, s.max_keypoints)
+    def extract(self, rgb: np.ndarray) -> Features:
+        return self.matcher.extract(rgb, self.config.obs_max_keypoints)
 
-    def compare(self, obs_rgb: np.ndarray, use_gate: bool = True, setting: SettingName = "full") -> ReIDResult:
+    def compare(self, obs_rgb: np.ndarray, use_gate: bool = True) -> ReIDResult:
         """Score a frame against the goal: extract; the gate's first stage (MNN count) and, past
         it, LighterGlue, stopped after its exit layer when the exit stage's score is below its
         threshold (the frame scores 0 either way). ``use_gate=False`` runs the full matcher
         whatever the gate says (the caller knows the frame matters: the agent near a candidate);
-        the first stage's score is still reported. ``setting="search"``: the frame is extracted
-        at the search setting and read against its thresholds (``ReIDResult.setting`` says which
-        setting scored it: "full" when the search setting is the full one or off)."""
+        the first stage's score is still reported."""
         if self.goal is None:
             raise RuntimeError("set_goal() first")
-        s = self.search if setting == "search" else self.full
         t0 = time.perf_counter()
-        obs = self.extract(obs_rgb, s)
+        obs = self.extract(obs_rgb)
         t1 = time.perf_counter()
         gate_score = self._gate.score(obs.descriptors) if self._gate is not None else None
         t_gate = time.perf_counter()
@@ -476,13 +276,13 @@ class ReIdentifier:
             # a frame the gate stopped (first stage, or LighterGlue's exit layer): score 0, no matches
             return ReIDResult(0.0, Matches.empty(), _EMPTY_XY, _EMPTY_XY, (t1 - t0) * 1e3, match_ms, full_matcher=False,
                               gate_score=gate_score, gate_ms=(t_gate - t1) * 1e3, exit_score=exit_score,
-                              features=obs, setting=s.name)  # fmt: skip
+                              features=obs)  # fmt: skip
 
-        if use_gate and s.gate_threshold is not None and gate_score is not None and gate_score < s.gate_threshold:
+        if use_gate and self.gate_threshold is not None and gate_score is not None and gate_score < self.gate_threshold:
             return skipped(0.0)
-        exit_on = use_gate and s.exit_threshold is not None
+        exit_on = use_gate and self.exit_threshold is not None
         if exit_on:
-            m = self.matcher.match(self.goal, obs, exit_below=(self.config.score, s.exit_threshold))  # type: ignore[call-arg]
+            m = self.matcher.match(self.goal, obs, exit_below=(self.config.score, self.exit_threshold))  # type: ignore[call-arg]
         else:
             m = self.matcher.match(self.goal, obs)
         t2 = time.perf_counter()
@@ -502,5 +302,4 @@ class ReIdentifier:
             gate_ms=(t_gate - t1) * 1e3,
             exit_score=exit_score,
             features=obs,
-            setting=s.name,
         )

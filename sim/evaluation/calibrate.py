@@ -15,14 +15,6 @@
    OUT/<matcher>_<score>.json, and the calibration file the agent reads,
    agent/calibration/<matcher>_<score>.json (unless ``--no-write-agent``).
 
-With ``--search`` the same pairs calibrate the search setting instead (``reid.search_max_side_px``
-/ ``search_max_keypoints``, or ``--search-side`` / ``--search-keypoints``): image a as the goal at the
-full setting, image b as a frame at the search setting (its side shrunk by the factor the setting
-shrinks the agent's frames by: ``calibration_core.search_image_side``). Its tau and figures go into
-the ``search`` block of the same calibration file, with the setting it was made at; the rest of the
-file is left as it is. With ``--gate`` too, the gate's two stages of the search setting
-(``gate_calibration``).
-
 Only the train split is used; asking for another split is refused.
 """
 
@@ -62,17 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-cache", default=None, help="directory of cached goal images (default OUT/images)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--no-write-agent", action="store_true", help="do not write agent/calibration/*.json")
-    parser.add_argument(
-        "--search",
-        action="store_true",
-        help="calibrate the search setting (frames reduced, goals full) into the file's search block",
-    )
-    parser.add_argument(
-        "--search-side", type=int, default=None, help="the search setting's longer side (default: the config's)"
-    )
-    parser.add_argument(
-        "--search-keypoints", type=int, default=None, help="the search setting's keypoints (default: the config's)"
-    )
     from sim.evaluation.cli import add_ray_arguments
 
     add_ray_arguments(
@@ -140,48 +121,6 @@ def load_or_sample_images(cache: Path, instances: int, per_instance: int, scene_
     return [e for e in index["images"] if e["instance"] in chosen]
 
 
-# --- the search setting -----------------------------------------------------------------
-
-
-def search_setting_of(cfg, args: argparse.Namespace) -> tuple[int, int] | None:
-    """The search setting ``--search`` calibrates, (side, keypoints): ``--search-side`` /
-    ``--search-keypoints``, else the config's; None without ``--search``. A clear error when it is
-    the full setting (nothing to calibrate)."""
-    if not getattr(args, "search", False):
-        return None
-    from dataclasses import replace
-
-    from agent.reid.identifier import search_setting_px
-
-    side = args.search_side if args.search_side is not None else cfg.search_max_side_px
-    kp = args.search_keypoints if args.search_keypoints is not None else cfg.search_max_keypoints
-    setting = search_setting_px(replace(cfg, search_max_side_px=side, search_max_keypoints=kp))
-    if setting == (cfg.max_side_px, cfg.obs_max_keypoints):
-        raise ValueError(
-            f"--search: the search setting {setting[0]} px / {setting[1]} keypoints is the full one; give "
-            "--search-side / --search-keypoints (or reid.search_* in --config)"
-        )
-    return setting
-
-
-def search_features(matcher, rgb, full_side_px: int, side_px: int, keypoints: int):
-    """A calibration image as a frame at the search setting (``search_image_side``)."""
-    from agent.reid.base import extract_at
-    from sim.evaluation.calibration_core import search_image_side
-
-    return extract_at(matcher, rgb, search_image_side(max(rgb.shape[:2]), full_side_px, side_px), keypoints)
-
-
-def _existing(path: Path, matcher: str, kind: str) -> dict:
-    """The calibration file a search block goes into: it must exist (the full setting first)."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: calibrate the full setting first (`imgnav calibrate --matcher {matcher}`)")
-    data = json.loads(path.read_text())
-    if data.get("matcher") != matcher or data.get("score") != kind:
-        raise ValueError(f"{path} calibrates {data.get('matcher')}/{data.get('score')}, not {matcher}/{kind}")
-    return data
-
-
 # --- one matcher ------------------------------------------------------------------------
 
 
@@ -195,16 +134,12 @@ def calibrate_matcher(
     from agent.config import load_agent_config
     from agent.reid.identifier import calibration_path, make_matcher
     from sim.episodes import read_rgb
-    from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs, search_image_side
+    from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs
 
     base = load_agent_config(args.config).reid
     cfg = replace(base, matcher=matcher_name, num_threads=args.threads)
-    search = search_setting_of(cfg, args)
-    image_sides: set[int] = set()  # the sides the search setting's frames were extracted at
     inst = [e["instance"] for e in entries]
     ps = make_pairs(inst, args.max_negatives, args.seed)
-    if search is not None and getattr(args, "ray", None):
-        raise ValueError("--search scores its pairs locally (the Ray tasks extract every image at one setting)")
     if getattr(args, "ray", None):  # features and matching in Ray tasks; times are task CPU seconds
         from sim.evaluation.cli import ray_options
         from sim.evaluation.ray_calibration import score_pairs_on_ray
@@ -228,29 +163,15 @@ def calibrate_matcher(
             for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")
         ]
         t_feat = time.perf_counter() - t0
-        frames = None
-        if search is not None:  # the frames of the pairs at the search setting
-            t0 = time.perf_counter()
-            frames = []
-            for e in tqdm(entries, desc=f"{matcher_name} features at {search[0]} px / {search[1]}", unit="img"):
-                rgb = read_rgb(cache / e["path"])
-                frames.append(search_features(matcher, rgb, cfg.max_side_px, *search))
-                image_sides.add(search_image_side(max(rgb.shape[:2]), cfg.max_side_px, search[0]))
-            t_feat = time.perf_counter() - t0
         t0 = time.perf_counter()
         conf, count = score_pairs(
-            matcher,
-            feats,
-            ps.pairs,
-            tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair"),
-            obs_features=frames,
+            matcher, feats, ps.pairs, tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair")
         )
         t_match = time.perf_counter() - t0
     cats = np.array([e["category"] for e in entries])
     same_cat = cats[ps.pairs[:, 0]] == cats[ps.pairs[:, 1]]
-    tag = "" if search is None else "_search"
     np.savez_compressed(
-        out / f"{matcher_name}{tag}_scores.npz",
+        out / f"{matcher_name}_scores.npz",
         pairs=ps.pairs,
         label=ps.label,
         weight=ps.weight,
@@ -259,11 +180,10 @@ def calibrate_matcher(
         same_category=same_cat,
     )
     curves = {"conf": pr_curves(conf, ps.label, ps.weight), "count": pr_curves(count, ps.label, ps.weight)}
-    at = "" if search is None else f" (frames at {search[0]} px / {search[1]} keypoints)"
     plot_curves(
-        str(out / f"{matcher_name}{tag}_pr.png"),
+        str(out / f"{matcher_name}_pr.png"),
         curves,
-        f"{matcher_name}{at}: {len(set(inst))} instances, {len(entries)} images, "
+        f"{matcher_name}: {len(set(inst))} instances, {len(entries)} images, "
         f"{int(ps.label.sum())} same / {int((~ps.label).sum())} of {ps.n_negatives_total} different pairs",
     )
     results = {}
@@ -291,30 +211,13 @@ def calibrate_matcher(
             "match_ms_per_pair": 1000 * t_match / max(len(ps.pairs), 1),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         }
-        path = calibration_path(matcher_name, kind)
-        if search is not None:
-            # the search block: frames at the search setting against goals at the full one
-            res = {
-                **{k: v for k, v in res.items() if k not in ("matcher", "score", "max_side_px")},
-                "max_side_px": search[0],
-                "max_keypoints": search[1],
-                "goal_max_side_px": cfg.max_side_px,
-                "image_side_px": sorted(image_sides),
-            }
-            written = {**_existing(path, matcher_name, kind), "search": res}
-            (out / f"{matcher_name}_{kind}_search.json").write_text(json.dumps(res, indent=1) + "\n")
-        else:
-            old = _existing(path, matcher_name, kind) if path.is_file() else {}
-            # the search block is calibrated on its own (its own tau and pairs): kept
-            written = {**res, **({"search": old["search"]} if "search" in old else {})}
-            (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
+        (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
         if not args.no_write_agent:
-            path.write_text(json.dumps(written, indent=1) + "\n")
+            calibration_path(matcher_name, kind).write_text(json.dumps(res, indent=1) + "\n")
         log.info(
-            "%s/%s%s: max F %.3f at tau %.4g (P %.3f, R %.3f)",
+            "%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)",
             matcher_name,
             kind,
-            at,
             c.max_f,
             c.tau,
             res["precision_at_tau"],

@@ -55,37 +55,18 @@ def make_pairs(instance_of_image: Sequence[int | str], max_negatives: int, seed:
 
 
 def score_pairs(
-    matcher: Matcher,
-    features: Sequence[Features],
-    pairs: np.ndarray,
-    progress: Iterable | None = None,
-    obs_features: Sequence[Features] | None = None,
+    matcher: Matcher, features: Sequence[Features], pairs: np.ndarray, progress: Iterable | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(conf, count) per pair: the two score functions from one matching pass. Pair (a, b) matches
-    image a as the goal against image b as the frame: ``features[b]``, or ``obs_features[b]`` when
-    the frames are extracted at another setting (the search setting: ``search_image_side``)."""
+    """(conf, count) per pair: the two score functions from one matching pass."""
     conf = np.zeros(len(pairs), np.float64)
     count = np.zeros(len(pairs), np.float64)
-    obs = features if obs_features is None else obs_features
     it = progress if progress is not None else range(len(pairs))
     for k in it:
         a, b = pairs[k]
-        m = matcher.match(features[a], obs[b])
+        m = matcher.match(features[a], features[b])
         conf[k] = float(np.sum(m.confidence, dtype=np.float64))
         count[k] = float(len(m))
     return conf, count
-
-
-def search_image_side(image_side_px: int, full_side_px: int, search_side_px: int) -> int:
-    """The longer side at which a calibration image stands for a frame seen at the search setting.
-
-    The agent's frames are at least as large as the full setting's side (sim: 360 x 640, the
-    Stretch's larger), so the search setting shrinks them by ``search / full``; a calibration image
-    (512 x 512 goal images) seen at the full setting keeps ``min(its side, full)`` and is shrunk by
-    the same factor for the search setting. (Reading ``search_side_px`` literally on a 512-pixel
-    image would shrink it far less than the frames: 480 is 0.94 of 512 but 0.75 of 640.)"""
-    base = min(int(image_side_px), int(full_side_px))
-    return max(1, min(base, int(round(base * int(search_side_px) / int(full_side_px)))))
 
 
 @dataclass(frozen=True, slots=True, eq=False)

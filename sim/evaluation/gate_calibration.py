@@ -15,14 +15,6 @@ measured on two kinds of train data:
    with the settings being calibrated (so a change of the matcher's settings, such as its early
    stop, needs no new episodes).
 
-With ``--search`` (``imgnav calibrate --gate --search``) the stages of the search setting are
-calibrated the same way at the search setting's tau (the file's ``search`` block, from ``imgnav
-calibrate --search``): goal-image pairs with the frame side at the search setting, and the frames of
-``gate_frames`` recordings that the agent scored at the search setting (recorded with the search
-setting on; frames recorded at the full setting, as all recordings before it were, are not its
-frames, and score-only ``--gate-records`` do not say the setting, so they are refused). The result
-goes into the ``search`` block.
-
 The threshold is the smaller of the two sources' (each must keep its own drop within the
 bound). It is written beside tau into ``agent/calibration/<matcher>_<score>.json`` for both score
 kinds (``gate_threshold``, ``gate_min_cosine`` and the figures behind it), with a scatter plot of
@@ -102,14 +94,13 @@ def frames_from_records(paths: list[str], exclude_val: bool = True) -> tuple[np.
 
 
 def frames_from_recordings(
-    dirs: list[str], matcher, gate_min_cosine: float, search: bool = False
+    dirs: list[str], matcher, gate_min_cosine: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(full scores, gate scores, exit scores, episodes) of every frame of ``gate_frames``
     recordings, all scored here from the recorded features: the full matcher's sum of confidences
     (``matcher`` with the settings being calibrated), the first stage's mutual-nearest-neighbour
     count and the exit stage's sum of confidences after the matcher's ``exit_layer`` (NaN when it
-    has none). Only the frames the agent extracted at the setting being calibrated: the full one,
-    or with ``search`` the search one (recordings before the search setting are all full)."""
+    has none)."""
     import torch
 
     from agent.reid.base import Features
@@ -134,13 +125,9 @@ def frames_from_recordings(
                 {"kp_resized": gk, "size_resized_wh": gsize},
             )
             goal_t = normalise_rows(goal.descriptors).T
-            n_frames = len(z["n_kp"])
-            at_search = z["search"] if "search" in z else np.zeros(n_frames, bool)
-            sizes = z["frame_size_wh"] if "frame_size_wh" in z else np.tile(z["size_wh"], (n_frames, 1))
+            w, h = (int(v) for v in z["size_wh"])
+            size = (w, h)
             for i, n in enumerate(z["n_kp"]):
-                if bool(at_search[i]) != search:
-                    continue
-                size = (int(sizes[i][0]), int(sizes[i][1]))
                 kp = torch.from_numpy(z["kp"][i, :n])
                 obs = Features(
                     kp.numpy(),
@@ -160,35 +147,21 @@ def _exit_score(matcher, kind: str) -> float:
     return float("nan") if scores is None else float(scores[kind])
 
 
-def score_pairs_both_stages(
-    matcher, gate_min_cosine: float, feats, pairs: np.ndarray, progress=None, obs_feats=None, times=None
-):
+def score_pairs_both_stages(matcher, gate_min_cosine: float, feats, pairs: np.ndarray, progress=None):
     """(conf, count, gate, exit_conf, exit_count) per pair: the full matcher's two scores, the
-    gate's MNN count, and the exit stage's two scores (NaN without an exit layer). Pair (a, b) is
-    image a as the goal (``feats``) against image b as the frame (``obs_feats``, default ``feats``:
-    the search setting's frames are extracted apart). ``times``: a dict that gets each pair's
-    ``gate_ms`` (the frame's descriptors normalised and counted, as ``MNNGate.score``) and
-    ``match_ms`` (every layer) appended."""
-    import time
-
+    gate's MNN count, and the exit stage's two scores (NaN without an exit layer)."""
     from agent.reid.gate import mnn_count, normalise_rows
 
-    obs_feats = feats if obs_feats is None else obs_feats
-    goal_t = [normalise_rows(f.descriptors).T for f in feats]
+    desc = [normalise_rows(f.descriptors) for f in feats]
     conf, count, gate = np.zeros(len(pairs)), np.zeros(len(pairs)), np.zeros(len(pairs))
     exit_conf, exit_count = np.full(len(pairs), np.nan), np.full(len(pairs), np.nan)
     for k in progress if progress is not None else range(len(pairs)):
         a, b = pairs[k]
-        t0 = time.perf_counter()
-        m = matcher.match(feats[a], obs_feats[b])
-        t1 = time.perf_counter()
+        m = matcher.match(feats[a], feats[b])
         conf[k] = float(np.sum(m.confidence, dtype=np.float64))
         count[k] = float(len(m))
         exit_conf[k], exit_count[k] = _exit_score(matcher, "conf"), _exit_score(matcher, "count")
-        gate[k] = mnn_count(normalise_rows(obs_feats[b].descriptors) @ goal_t[a], gate_min_cosine)
-        if times is not None:
-            times.setdefault("match_ms", []).append((t1 - t0) * 1e3)
-            times.setdefault("gate_ms", []).append((time.perf_counter() - t1) * 1e3)
+        gate[k] = mnn_count(desc[b] @ desc[a].T, gate_min_cosine)
     return conf, count, gate, exit_conf, exit_count
 
 
@@ -247,31 +220,6 @@ def _stage_threshold(
     return threshold, figures
 
 
-def _search_block(path: Path, own: Path, no_write_agent: bool, search: tuple[int, int], cfg) -> dict:
-    """The search setting's calibration (``imgnav calibrate --search`` first): the ``search`` block
-    of the calibration file ``path``, or with ``--no-write-agent`` the block that run wrote to its
-    OUT (``own``) when there is one; checked to be for ``search`` against goals at the full setting
-    of ``cfg``."""
-    if no_write_agent and own.is_file():
-        block, where = json.loads(own.read_text()), own
-    else:
-        block, where = (json.loads(path.read_text()) if path.is_file() else {}).get("search"), path
-    if block is None:
-        raise ValueError(f"{where} has no search block: run `imgnav calibrate --search` before `--gate --search`")
-    made = (
-        block.get("max_side_px"),
-        block.get("max_keypoints"),
-        block.get("goal_max_side_px"),
-        block.get("goal_max_keypoints"),
-    )
-    if made != (*search, cfg.max_side_px, cfg.goal_max_keypoints):
-        raise ValueError(
-            f"{where}: the search block is for frames at {made[0]} px / {made[1]} against goals at {made[2]} / "
-            f"{made[3]}, not {search[0]} / {search[1]} against {cfg.max_side_px} / {cfg.goal_max_keypoints}"
-        )
-    return block
-
-
 def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.Namespace) -> dict:
     """Both stages of the gate for every score kind: the first stage's MNN-count threshold and,
     when the deployment's matcher has an exit layer, the exit stage's threshold on LighterGlue's
@@ -281,17 +229,9 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
     from agent.config import load_agent_config
     from agent.reid.identifier import calibration_path, make_matcher, resolve_tau
     from sim.episodes import read_rgb
-    from sim.evaluation.calibrate import search_features, search_setting_of
     from sim.evaluation.calibration_core import make_pairs
 
     base = load_agent_config(args.config).reid
-    search = search_setting_of(base, args)
-    if search is not None and args.gate_records:
-        raise ValueError(
-            "--gate --search: score records (--gate-records) do not say which setting scored each step; "
-            "record frames at the search setting with `python -m sim.evaluation.gate_frames --set ...` instead"
-        )
-    tag = "" if search is None else "_search"
     result: dict = {}
     for matcher_name in args.matcher:
         cfg = replace(
@@ -302,27 +242,13 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
             gate=True,
             gate_exit_layer=base.gate_exit_layer if matcher_name == "xfeat_lighterglue" else 0,
         )
-        if search is None:
-            taus = {kind: resolve_tau(replace(cfg, score=kind)) for kind in ("conf", "count")}
-        else:
-            blocks = {
-                kind: _search_block(
-                    calibration_path(matcher_name, kind),
-                    out / f"{matcher_name}_{kind}_search.json",
-                    args.no_write_agent,
-                    search,
-                    cfg,
-                )
-                for kind in ("conf", "count")
-            }
-            taus = {kind: float(b["tau"]) for kind, b in blocks.items()}
+        taus = {kind: resolve_tau(replace(cfg, score=kind)) for kind in ("conf", "count")}
         matcher = make_matcher(cfg)
         exit_layer = int(getattr(matcher, "exit_layer", 0))
         if exit_layer:
             matcher.always_score_exit = True  # type: ignore[attr-defined]
         ps = make_pairs([e["instance"] for e in entries], args.gate_negatives, args.seed)
-        scores_path = out / f"{matcher_name}{tag}_gate_pairs.npz"
-        frame_setting = np.asarray(search if search is not None else (cfg.max_side_px, cfg.obs_max_keypoints))
+        scores_path = out / f"{matcher_name}_gate_pairs.npz"
         key = np.asarray([e["path"] for e in entries])
         cached = np.load(scores_path) if scores_path.is_file() else None
         if (
@@ -332,12 +258,6 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
             and float(cached["min_cosine"]) == cfg.gate_min_cosine
             and (float(cached["early_stop"]) if "early_stop" in cached.files else -1.0) == -1.0
             and (int(cached["exit_layer"]) if "exit_layer" in cached.files else 0) == exit_layer
-            and np.array_equal(
-                cached["frame_setting"]
-                if "frame_setting" in cached.files
-                else (cfg.max_side_px, cfg.obs_max_keypoints),
-                frame_setting,
-            )
         ):
             # the same images and pairs were scored by an earlier run (e.g. before more records came)
             conf, count, gate, ms_pair = cached["conf"], cached["count"], cached["gate"], float(cached["ms_pair"])
@@ -348,12 +268,6 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
                 for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")
             ]
-            frames = None
-            if search is not None:  # the pairs' frames at the search setting, their goals full
-                frames = [
-                    search_features(matcher, read_rgb(cache / e["path"]), cfg.max_side_px, *search)
-                    for e in tqdm(entries, desc=f"{matcher_name} features at {search[0]} px / {search[1]}", unit="img")
-                ]
             t0 = time.perf_counter()
             conf, count, gate, exit_conf, exit_count = score_pairs_both_stages(
                 matcher,
@@ -361,7 +275,6 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 feats,
                 ps.pairs,
                 tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs (both stages)", unit="pair"),
-                obs_feats=frames,
             )
             ms_pair = 1000 * (time.perf_counter() - t0) / max(len(ps.pairs), 1)
             np.savez_compressed(
@@ -377,19 +290,11 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 exit_layer=exit_layer,
                 min_cosine=cfg.gate_min_cosine,
                 ms_pair=ms_pair,
-                frame_setting=frame_setting,
             )
         ego_full, ego_gate, ego_eps = frames_from_records(args.gate_records)
         ego_exit = np.full(len(ego_full), np.nan)  # score records carry no exit-stage scores
         if getattr(args, "gate_frames", None):
-            f_full, f_gate, f_exit, f_eps = frames_from_recordings(
-                args.gate_frames, matcher, cfg.gate_min_cosine, search=search is not None
-            )
-            if search is not None and not len(f_full):
-                raise ValueError(
-                    f"{args.gate_frames}: no frame was recorded at the search setting (recordings made with it off "
-                    "hold full-setting frames only)"
-                )
+            f_full, f_gate, f_exit, f_eps = frames_from_recordings(args.gate_frames, matcher, cfg.gate_min_cosine)
             ego_full, ego_gate = np.concatenate([ego_full, f_full]), np.concatenate([ego_gate, f_gate])
             ego_exit = np.concatenate([ego_exit, f_exit])
             ego_eps += f_eps
@@ -405,13 +310,12 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
             threshold, figures = _stage_threshold(sources, tau, args.gate_max_drop)
             if "train-episode frames" in figures:
                 figures["train-episode frames"]["episodes"] = ego_eps
-            at = "" if search is None else f" (search setting {search[0]} px / {search[1]})"
             plot_gate(
-                out / f"{matcher_name}_{kind}{tag}_gate.png",
+                out / f"{matcher_name}_{kind}_gate.png",
                 sources,
                 tau,
                 threshold,
-                f"{matcher_name}/{kind}{at}: gate threshold {threshold:g} (MNN cosine >= {cfg.gate_min_cosine})",
+                f"{matcher_name}/{kind}: gate threshold {threshold:g} (MNN cosine >= {cfg.gate_min_cosine})",
             )
             update = dict(
                 gate_threshold=threshold,
@@ -438,11 +342,11 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                         full_matcher_share_both_stages=float(np.mean(both)),
                     )
                 plot_gate(
-                    out / f"{matcher_name}_{kind}{tag}_gate_exit.png",
+                    out / f"{matcher_name}_{kind}_gate_exit.png",
                     exit_sources,
                     tau,
                     exit_threshold,
-                    f"{matcher_name}/{kind}{at}: exit threshold {exit_threshold:.3g} after layer {exit_layer}",
+                    f"{matcher_name}/{kind}: exit threshold {exit_threshold:.3g} after layer {exit_layer}",
                     xlabel=f"exit-stage score (after layer {exit_layer})",
                 )
                 update.update(
@@ -450,24 +354,20 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 )
             path = calibration_path(matcher_name, kind)
             data = json.loads(path.read_text())
-            if search is None:
-                data.update(update)
-            else:  # the search block (checked to be for this setting by _search_block)
-                data["search"] = {**blocks[kind], **update}
-            (out / f"{matcher_name}_{kind}{tag}_gate.json").write_text(json.dumps(data, indent=1) + "\n")
+            data.update(update)
+            (out / f"{matcher_name}_{kind}_gate.json").write_text(json.dumps(data, indent=1) + "\n")
             if not args.no_write_agent:
                 import shutil
 
                 path.write_text(json.dumps(data, indent=1) + "\n")
                 for suffix in ("gate", "gate_exit"):
-                    png = out / f"{matcher_name}_{kind}{tag}_{suffix}.png"
+                    png = out / f"{matcher_name}_{kind}_{suffix}.png"
                     if png.is_file():
                         shutil.copyfile(png, path.with_name(png.name))
             log.info(
-                "%s/%s%s gate: threshold %g, exit threshold %s (tau %.4g); %s",
+                "%s/%s gate: threshold %g, exit threshold %s (tau %.4g); %s",
                 matcher_name,
                 kind,
-                at,
                 threshold,
                 "off" if exit_threshold is None else f"{exit_threshold:.3g}",
                 tau,

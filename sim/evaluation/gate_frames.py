@@ -10,9 +10,7 @@ writes one compressed ``.npz`` per episode:
     goal_kp (G, 2) float32, goal_desc (G, 64) float16, goal_size_wh (2,)   the goal image's features
     kp      (T, K, 2) float32 pixel xy of each frame's keypoints (padded; n_kp gives the count)
     desc    (T, K, 64) float16 descriptors (float16 halves the file; the gate's scores move < 1e-3)
-    n_kp    (T,) int32, size_wh (2,) the last frame's size (as the matcher saw it)
-    frame_size_wh (T, 2)  each frame's size as the matcher saw it (the search setting's frames are smaller)
-    search  (T,) bool     the frame was extracted and scored at the search setting (``reid.search_*``)
+    n_kp    (T,) int32, size_wh (2,) the frames' size
     full    (T,) float32 full re-ID score (sum of LighterGlue confidences)
     searching (T,) bool   the agent was looking around, exploring or rescanning (where a gate acts)
     goal_px (T,) int32    goal pixels in the frame (ground truth, for analysis only)
@@ -22,10 +20,6 @@ Train only (``--split`` is checked): these frames choose a threshold.
 
     python -m sim.evaluation.gate_frames --episodes data/episodes/trainph40 --count 20 \
         --max-steps 400 --workers 2 --out runs/gate_frames
-
-With a search setting (``--set reid.search_max_side_px=480 --set reid.search_max_keypoints=512``,
-calibrated first by ``imgnav calibrate --search``) the searching frames are recorded as the agent
-extracts them at it, for ``imgnav calibrate --gate --search``.
 """
 
 from __future__ import annotations
@@ -41,7 +35,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from agent.config import AgentConfig
     from agent.reid import Features
 
 log = logging.getLogger(__name__)
@@ -79,7 +72,7 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
     rec = _RecordingMatcher(make_matcher(config.reid))
     agent = ModIINAgent(config, matcher=rec)
     backend = SimBackend.for_episode(world, episode, es.goal_image_path(episode))
-    frames: dict[str, list] = {k: [] for k in ("kp", "desc", "full", "searching", "goal_px", "size", "search")}
+    frames: dict[str, list] = {k: [] for k in ("kp", "desc", "full", "searching", "goal_px")}
 
     class Sink:
         def before_apply(self, s) -> None:
@@ -90,8 +83,6 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
             frames["full"].append(float(s.record.reid_score))
             frames["searching"].append(s.record.mode in SEARCHING_MODES)
             frames["goal_px"].append(int(backend.oracle.goal_mask().sum()))
-            frames["size"].append(f.extra.get("size_resized_wh", f.image_size_wh))
-            frames["search"].append(s.record.reid_setting == "search")
 
         def step(self, s) -> None:
             pass
@@ -116,8 +107,6 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
         desc=desc,
         n_kp=n_kp,
         size_wh=np.asarray(last.extra.get("size_resized_wh", last.image_size_wh), np.float32),
-        frame_size_wh=np.asarray(frames["size"], np.float32).reshape(-1, 2),
-        search=np.asarray(frames["search"], bool),
         full=np.asarray(frames["full"], np.float32),
         searching=np.asarray(frames["searching"], bool),
         goal_px=np.asarray(frames["goal_px"], np.int32),
@@ -126,28 +115,8 @@ def record_episode(world, es, episode, config, max_steps: int, out_path: Path) -
     return {"episode_id": episode.episode_id, "frames": n}
 
 
-def with_overrides(cfg: AgentConfig, items) -> AgentConfig:
-    """``cfg`` with each ``KEY=VALUE`` (a dotted key, a YAML value) applied, strictly."""
-    import yaml
-
-    from agent.config import agent_config_from_dict
-    from agent.configio import to_dict
-
-    data = to_dict(cfg)
-    for item in items:
-        key, sep, value = item.partition("=")
-        *path, leaf = key.strip().split(".")
-        node = data
-        for part in path:
-            if not sep or not isinstance(node.get(part), dict):
-                raise ValueError(f"--set {item!r}: expected SECTION.KEY=VALUE")
-            node = node[part]
-        node[leaf] = yaml.safe_load(value)
-    return agent_config_from_dict(data)
-
-
 def _run_scene(job: tuple) -> list[dict]:
-    episodes_dir, ids, config_name, overrides, max_steps, out, threads = job
+    episodes_dir, ids, config_name, max_steps, out, threads = job
     import torch
 
     from agent.config import load_agent_config
@@ -157,7 +126,7 @@ def _run_scene(job: tuple) -> list[dict]:
     torch.set_num_threads(threads)
     es = load_episode_set(episodes_dir)
     by_id = {e.episode_id: e for e in es.episodes}
-    cfg = with_overrides(load_agent_config(config_name), overrides)
+    cfg = load_agent_config(config_name)
     cfg = replace(cfg, reid=replace(cfg.reid, gate=False, gate_shadow=False, num_threads=threads))
     done = []
     world = SimWorld.from_seed(by_id[ids[0]].scene_seed)
@@ -180,13 +149,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-steps", type=int, default=400)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--config", default="sim")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="config override (YAML value), e.g. reid.search_max_side_px=480; repeatable",
-    )
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -202,10 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     scenes: dict[int, list[str]] = {}
     for e in eps:
         scenes.setdefault(e.scene_seed, []).append(e.episode_id)
-    from agent.config import load_agent_config
-
-    with_overrides(load_agent_config(args.config), args.set)  # a bad override fails here, not in a worker
-    jobs = [(args.episodes, ids, args.config, tuple(args.set), args.max_steps, args.out, 1) for ids in scenes.values()]
+    jobs = [(args.episodes, ids, args.config, args.max_steps, args.out, 1) for ids in scenes.values()]
     if args.workers > 1:
         with mp.get_context("spawn").Pool(args.workers) as pool:
             for res in pool.imap_unordered(_run_scene, jobs):

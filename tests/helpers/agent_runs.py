@@ -81,7 +81,7 @@ def painted_agent(world, goal_score, **policy):
     agent = ModIINAgent(cfg, matcher=NoMatcher(), goal_mask_fn=lambda img: np.ones(img.shape[:2], bool))
     ungated = []
 
-    def compare(rgb, use_gate=True, setting="full"):
+    def compare(rgb, use_gate=True):
         goal = np.all(rgb == GOAL_RGB, axis=2)
         decoy = np.all(rgb == DECOY_RGB, axis=2)
         n_goal, n_decoy = int(goal.sum()), int(decoy.sum())

@@ -320,7 +320,7 @@ def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
     )
     x0, y0, x1, y1, _ = world.boxes[decoy]
 
-    def compare(rgb, use_gate=True, setting="full"):
+    def compare(rgb, use_gate=True):
         if world.goal_visible(None):
             score = goal_score(world.distance_to_goal())
         elif np.count_nonzero(world._ids == decoy) >= 20:

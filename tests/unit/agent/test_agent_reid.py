@@ -1,10 +1,28 @@
 import json
 
+import cv2
 import numpy as np
 import pytest
+import skimage.data
 
 from agent.reid import Matches, ReIDConfig, ReIdentifier, resolve_tau, score, valid_matches
-from tests.helpers.reid_views import goal_and_views
+
+
+def goal_and_views():
+    goal = cv2.resize(skimage.data.astronaut(), (512, 512))
+    A = cv2.getRotationMatrix2D((256, 256), 10, 0.8)  # 2x3: goal -> warped
+    warped = cv2.warpAffine(goal, A, (512, 512))
+    x0, y0, x1, y1 = 100, 60, 330, 460
+    sx, sy = 360 / (x1 - x0), 640 / (y1 - y0)
+    same = cv2.resize(warped[y0:y1, x0:x1], (360, 640))
+
+    # goal pixel -> view pixel
+    def to_view(xy):
+        w = xy @ A[:, :2].T + A[:, 2]
+        return np.stack([(w[:, 0] - x0) * sx, (w[:, 1] - y0) * sy], axis=1)
+
+    other = cv2.resize(skimage.data.coffee(), (360, 640))
+    return goal, same, other, to_view
 
 
 @pytest.mark.parametrize("matcher", ["xfeat_lighterglue", "sift"])

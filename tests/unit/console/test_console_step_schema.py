@@ -202,7 +202,7 @@ def test_every_field_round_trips_from_the_agent_to_sqlite_json_and_back_to_a_rec
             given[c.agent_attr] = ("side_step", f"{c.name} {k}")
         else:
             raise AssertionError(f"no test value for {c.name} ({c.type.sql})")
-    assert "event" in given and "context" in given and "reid_setting" in given  # the search setting's (issue 32)
+    assert "event" in given and "context" in given
     record = AgentRecord(
         step=7, action=Action.TURN_LEFT, pose=Pose2D(1.0, -2.0, 0.5), timings_ms={"total": 3.25},
         goal_points_xyz=np.zeros((4, 3), np.float32), target_xy_m=(np.float32(1.5), 2.5), **given,
