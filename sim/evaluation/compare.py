@@ -21,6 +21,13 @@ prints, on the episodes that every run has (a ladder in the paper's layout):
 Against the first run each variant also says on how many episodes it took exactly the same
 actions (a change meant to leave the agent's decisions alone should say "all").
 
+Multi-goal runs (records with ``subtasks``, issue 31) are compared subtask by subtask: every
+table above is over the subtasks (``<sequence id>#<goal index>``) and one more sets the first goal
+against the later ones: each run's SR and SPL on first and on later goals, and against the first
+run the paired differences on each and the later goals' SPL ratio (this run's mean SPL over the
+first run's, on the same later subtasks), each with its interval over homes. Later subtasks of
+two runs share the goal, not the start: each starts where its own run ended the goal before.
+
 ``--all`` uses each run's own episodes for the first table instead (unpaired).
 
 ``--identical`` checks a change meant to leave the agent alone (a refactoring): on the episodes
@@ -73,6 +80,84 @@ def load_records(out_dir: str | Path) -> dict[str, dict[str, Any]]:
             raise ValueError(f"{path}:{n}: not JSON ({exc})") from exc
         out.setdefault(str(r["episode_id"]), r)
     return out
+
+
+def subtask_records(records: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """A multi-goal run's records as one record per subtask, ``<sequence id>#<goal index>``, with the
+    sequence's home and fields (single-goal records are returned as they are)."""
+    out: dict[str, dict[str, Any]] = {}
+    for sid, r in records.items():
+        if "subtasks" not in r:
+            out[sid] = dict(r)
+            continue
+        shared = {k: v for k, v in r.items() if k not in ("subtasks", "timing", "steps", "success", "spl", "error")}
+        for sub in r["subtasks"]:
+            out[f"{sid}#{sub['goal_index']}"] = {**shared, **sub, "episode_id": f"{sid}#{sub['goal_index']}"}
+    return out
+
+
+def ratio_ci(
+    base: Sequence[float], variant: Sequence[float], homes: Sequence[Any], resamples: int = 2000, seed: int = 0
+) -> tuple[float, tuple[float, float]]:
+    """mean(variant) / mean(base) on paired values, with a 95% percentile-bootstrap interval over
+    resampled homes (each draw keeps the pairs: both runs see the same drawn episodes)."""
+    import numpy as np
+
+    b, v = np.asarray(base, np.float64), np.asarray(variant, np.float64)
+    keys = {k: i for i, k in enumerate(dict.fromkeys(homes))}
+    idx = np.fromiter((keys[k] for k in homes), np.int64, len(homes))
+    sb = np.bincount(idx, weights=b, minlength=len(keys))
+    sv = np.bincount(idx, weights=v, minlength=len(keys))
+    draw = np.random.default_rng(seed).integers(0, len(keys), size=(resamples, len(keys)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stats = sv[draw].sum(axis=1) / sb[draw].sum(axis=1)
+    lo, hi = np.nanquantile(stats, [0.025, 0.975])
+    value = float(v.sum() / b.sum()) if b.sum() > 0 else float("nan")
+    return value, (round(float(lo), 4), round(float(hi), 4))
+
+
+def _first_and_later(
+    out_dirs: Sequence[str], raw: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]
+) -> list[str]:
+    """The multi-goal table: first goal against later goals (module docstring)."""
+    common_seq = sorted(set.intersection(*(set(r) for r in raw)))
+    if not common_seq:
+        return []
+    first = [f"{k}#0" for k in common_seq]
+    later = [f"{k}#{s['goal_index']}" for k in common_seq for s in raw[0][k]["subtasks"] if s["goal_index"] > 0]
+    homes_later = [runs[0][k]["scene_seed"] for k in later]
+    lines = [
+        "",
+        f"First goal against later goals on the {len(common_seq)} common sequences ({len(later)} later goals):",
+        "",
+        "| variant | first SR [95% CI] | first SPL [95% CI] | later SR [95% CI] | later SPL [95% CI] |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for d, recs in zip(out_dirs, runs):
+        a = aggregate([{**recs[k], "ne": float(recs[k]["ne"])} for k in first])
+        b = aggregate([{**recs[k], "ne": float(recs[k]["ne"])} for k in later])
+        lines.append(
+            f"| {_label(d, recs)} | {_ci(a['sr'], a['sr_ci95'])} | {_ci(a['spl'], a['spl_ci95'])} | "
+            f"{_ci(b['sr'], b['sr_ci95'])} | {_ci(b['spl'], b['spl_ci95'])} |"
+        )
+    if len(runs) > 1:
+        lines += [
+            "",
+            f"Paired against {out_dirs[0]} (bootstrap over homes):",
+            "",
+            "| variant | first d SR | first d SPL | later d SR | later d SPL | later SPL ratio [95% CI] |",
+            "| --- | --- | --- | --- | --- | --- |",
+        ]
+        for d, recs in zip(out_dirs[1:], runs[1:]):
+            p0 = paired_difference(runs[0], recs, first)
+            p1 = paired_difference(runs[0], recs, later)
+            r, r_ci = ratio_ci([runs[0][k]["spl"] for k in later], [recs[k]["spl"] for k in later], homes_later)
+            lines.append(
+                f"| {_label(d, recs)} | {_signed_ci(p0.d_sr, p0.d_sr_ci95)} | {_signed_ci(p0.d_spl, p0.d_spl_ci95)} | "
+                f"{_signed_ci(p1.d_sr, p1.d_sr_ci95)} | {_signed_ci(p1.d_spl, p1.d_spl_ci95)} | "
+                f"{r:.2f} [{r_ci[0]:.2f}, {r_ci[1]:.2f}] |"
+            )
+    return lines
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,7 +216,11 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
     """The three Markdown tables described in the module docstring."""
     if len(out_dirs) < 1:
         raise ValueError("give at least one evaluation output")
-    runs = [load_records(d) for d in out_dirs]
+    raw = [load_records(d) for d in out_dirs]
+    multi = [any("subtasks" in r for r in recs.values()) for recs in raw]
+    if any(multi) and not all(multi):
+        raise ValueError("multi-goal and single-goal runs cannot be compared")
+    runs = [subtask_records(recs) for recs in raw] if any(multi) else raw
     common = sorted(set.intersection(*(set(r) for r in runs)))
     if paired and not common:
         raise ValueError("the runs have no episode in common")
@@ -200,6 +289,8 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
                 f"| {_label(d, recs)} | {costs['agent_ms_per_step']:.0f} | {costs['sim_ms_per_step']:.0f} | "
                 f"{costs['episodes_per_hour']:.1f} | {costs['episodes_per_hour'] / base_rate:.2f} |"
             )
+    if any(multi) and paired:
+        lines += _first_and_later(out_dirs, raw, runs)
     return "\n".join(lines)
 
 

@@ -148,3 +148,39 @@ def test_identical_leaves_out_the_timings_of_a_sequences_subtasks() -> None:
 
     assert record_differences(seq(1.0, 3), seq(2.0, 3), TIMING_FIELDS) == []
     assert record_differences(seq(1.0, 3), seq(2.0, 4), TIMING_FIELDS) == ["subtasks[0].steps", "subtasks[1].steps"]
+
+
+def seq(sid, home, subtasks):
+    """A multi-goal record: (success, spl) per goal."""
+    subs = []
+    for g, (ok, spl) in enumerate(subtasks):
+        s = rec(f"{sid}-g{g}", home, ok, spl=spl, cause="exploration")
+        del s["episode_id"], s["scene_seed"], s["variant"]
+        subs.append({**s, "goal_index": g, "kind": "new"})
+    return {"episode_id": sid, "scene_seed": home, "variant": "v", "goals": len(subs), "subtasks": subs}
+
+
+def test_multi_goal_runs_are_compared_subtask_by_subtask_first_goal_against_later(tmp_path):
+    base = write(
+        tmp_path,
+        "nomem",
+        [seq("s1", 1, [(True, 0.8), (True, 0.2), (False, 0.0)]), seq("s2", 2, [(True, 0.6), (True, 0.4), (True, 0.4)])],
+    )
+    mem = write(
+        tmp_path,
+        "mem",
+        [seq("s1", 1, [(True, 0.8), (True, 0.6), (True, 0.5)]), seq("s2", 2, [(True, 0.6), (True, 0.8), (False, 0.0)])],
+    )
+    out = compare([base, mem])
+    assert out.startswith("Episodes in common: 6 (2 homes)")  # the subtasks are the episodes
+    # first goals the same; later: SR 3/4 both, SPL 0.25 -> 0.475, ratio 1.9 (sums 1.0 -> 1.9)
+    row = out.splitlines()[-1]  # the last table: paired, first against later goals
+    assert row.startswith(f"| {mem}")
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1].startswith("+0.000") and cells[2].startswith("+0.000")
+    assert cells[3].startswith("+0.000") and cells[4].startswith("+0.225")
+    assert cells[5].startswith("1.90 [")
+    later = next(line for line in out.splitlines() if line.startswith(f"| {base}") and "0.250 [" in line)
+    assert "| 0.750 [" in later
+    with pytest.raises(ValueError, match="multi-goal and single-goal"):
+        compare([base, write(tmp_path, "single", BASE)])
