@@ -344,6 +344,12 @@ class HomeMemory:
             del self._keyframes[next(iter(self._keyframes))]
         return kf
 
+    def restore(self, keyframes: list[Keyframe], next_id: int) -> None:
+        """Put back keyframes read from a file (``console.home_memory``), oldest first, each under
+        its place and heading, and the next keyframe id. Serialisation only: no bounds are applied."""
+        self._keyframes = {self.key(kf.pose): kf for kf in keyframes}
+        self._next_id = int(next_id)
+
     # --- goals ------------------------------------------------------------------------
 
     def begin_goal(self, mapping: MappingConfig, matcher: str | None = None) -> GridMap:

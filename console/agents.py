@@ -150,8 +150,11 @@ def resolve_deployment_tau(config: Any, deployment: str | Path | Deployment) -> 
     return config, {"kind": "packaged_simulator_calibration", "path": str(packaged), "note": note}
 
 
-def build_agent(deployment: str | Path | Deployment) -> tuple[Agent, dict[str, Any]]:
+def build_agent(deployment: str | Path | Deployment, home_memory: Any = None) -> tuple[Agent, dict[str, Any]]:
     """The agent and its full configuration as plain data (stored with the run).
+
+    ``home_memory``: an ``agent.memory.HomeMemory`` the agent starts from and adds to (the
+    console's memory of the run's home, ``console.home_memory``); None: from nothing.
 
     ``deployment`` is a deployment name (``sim``, ``stretch``), a YAML path, or a
     ``Deployment`` (a name and where its own calibration lives). The first call loads the
@@ -162,11 +165,12 @@ def build_agent(deployment: str | Path | Deployment) -> tuple[Agent, dict[str, A
 
     config = load_agent_config(str(deployment) if isinstance(deployment, Deployment) else deployment)
     config, tau_source = resolve_deployment_tau(config, deployment)
-    agent = ModIINAgent(config, matcher=shared_matcher(config.reid))
+    agent = ModIINAgent(config, matcher=shared_matcher(config.reid), home_memory=home_memory)
     as_dict = dataclasses.asdict(config)
     as_dict["deployment"] = str(deployment)
     as_dict["tau_resolved"] = getattr(agent, "tau", None)
     as_dict["tau_source"] = tau_source
+    as_dict["home_memory"] = home_memory is not None
     logger.info(
         "agent %s: tau %s from %s (%s)", deployment, as_dict["tau_resolved"], tau_source["kind"], tau_source["path"]
     )

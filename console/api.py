@@ -14,6 +14,8 @@
     GET  /api/runs/{id}/artifacts/{name}   goal photo, trajectory JSON, map PNG, run video
     GET  /api/runs/{id}/replay     a finished run step by step (console.routes.replay)
     /api/calibration/...           a deployment's tau from the operator's own photos
+    GET  /api/memory/{home}        what the agent remembers of a simulator home (map.png: its map)
+    DELETE /api/memory/{home}      forget a home
 
 Routers (``console.routes``) receive the console through ``Depends`` (``console.deps``);
 the console itself is built in the app's lifespan when ``create_app`` is given a factory
@@ -34,7 +36,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from console.context import Console, ConsoleConfig
-from console.routes import calibration, pages, replay, runs, sim
+from console.routes import calibration, memory, pages, replay, runs, sim
 from console.security import GuardMiddleware, allowed_hosts
 
 logger = logging.getLogger(__name__)
@@ -93,7 +95,7 @@ def create_app(
             detail = {"code": "bad_form", "message": _form_error_message(detail)}
         return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
 
-    for module in (pages, runs, replay, sim, calibration):
+    for module in (pages, runs, replay, sim, calibration, memory):
         app.include_router(module.router)
 
     guarded = GuardMiddleware(app, max_bytes=config.max_request_bytes)

@@ -6,6 +6,8 @@
   target instance when it is known, so the run can be scored) and a Mod-IIN agent.
   With the console's ``WorldCache`` (``console.sim_cache``) the home stays built between
   runs, and so do its start frames and the scoring data of its targets.
+* With a ``HomeSlot`` (``console.home_memory``) the run's agent starts from the home's memory and
+  its backend reports poses in the memory's frame (``agent.memory.InHomeFrame``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from PIL import Image
 
 from agent.types import Action, Agent, Pose2D
 from console.agents import build_agent
+from console.home_memory import HomeSlot
 from console.photos import dhash
 from console.session import Outcome
 from console.sim_cache import WorldCache, kept_scoring, kept_start_render
@@ -196,6 +199,9 @@ class SimSession:
     agent_config: Mapping[str, Any] = field(default_factory=dict)
     target_known: bool = False
     open_timings: Mapping[str, float] = field(default_factory=dict)  # open_backend_s, open_agent_s
+    # with a home memory: ``backend`` is the SimBackend in the memory's frame, this the SimBackend itself
+    sim_backend: Any = None
+    on_close: Callable[[], None] | None = None  # after the backend is closed (the memory is saved)
 
     def outcome(self, last_action: Action | None, reason: str) -> Outcome:
         if reason == "operator":
@@ -209,14 +215,19 @@ class SimSession:
             outcome = "unscored"
         if not self.target_known:
             return Outcome(outcome, f"{detail}; the goal photo's instance is unknown, so the run is not scored")
-        metrics = _metrics(self.backend.result())  # None while the episode is not over
+        sim = self.sim_backend if self.sim_backend is not None else self.backend
+        metrics = _metrics(sim.result())  # None while the episode is not over
         if outcome == "stopped":
             return Outcome("stopped", f"{detail}; a stopped run is not scored", metrics or None)
         success = bool(metrics.get("success")) if metrics else False
         return Outcome("success" if success else "failure", detail, metrics)
 
     def close(self) -> None:
-        self.backend.close()
+        try:
+            self.backend.close()
+        finally:
+            if self.on_close is not None:
+                self.on_close()
 
 
 def _metrics(result: Any) -> dict[str, Any]:
@@ -243,6 +254,8 @@ def open_session(
     worlds: WorldCache | None = None,
     realism: Realism | None = None,
     run_key: str | None = None,
+    memory: HomeSlot | None = None,
+    on_close: Callable[[], None] | None = None,
 ) -> SimSession:
     from sim.backend import SimBackend
     from sim.camera import SIM_CAMERA
@@ -278,6 +291,9 @@ def open_session(
         ),
         agent_config_path,
         target_known=target_instance_id is not None,
+        memory=memory,
+        start_world=start,
+        on_close=on_close,
     )
 
 
@@ -288,18 +304,48 @@ def _session(
     make_backend: Callable[[], Any],
     agent_config_path: Path | None,
     target_known: bool,
+    memory: HomeSlot | None = None,
+    start_world: Pose2D | None = None,
+    on_close: Callable[[], None] | None = None,
 ) -> SimSession:
-    """The backend and the agent of a run; a world of the run's own is closed if either fails."""
+    """The backend and the agent of a run; a world of the run's own is closed if either fails.
+    With ``memory``: the agent gets the home's memory and the backend is seen in its frame, the
+    origin being this run's true start (``start_world``) in that frame (``HomeSlot.origin_for``:
+    in the simulator's warm home the true start poses stand for the odometry of a robot that
+    keeps its map between requests)."""
+    from agent.memory import InHomeFrame
+
     try:
         backend = make_backend()
         t1 = time.perf_counter()
-        agent, agent_config = build_agent(agent_config_path or "sim")
+        agent, agent_config = build_agent(
+            agent_config_path or "sim", home_memory=None if memory is None else memory.memory
+        )
     except BaseException:
         if owns:
             world.close()
         raise
     timings = {"open_backend_s": t1 - t0, "open_agent_s": time.perf_counter() - t1}
-    return SimSession(backend, agent, agent_config, target_known=target_known, open_timings=timings)
+    if memory is None:
+        return SimSession(
+            backend, agent, agent_config, target_known=target_known, open_timings=timings, on_close=on_close
+        )
+    assert start_world is not None
+    origin = memory.origin_for(start_world)
+    agent_config = {
+        **agent_config,
+        "memory_home": memory.key,
+        "memory_origin": [origin.x_m, origin.y_m, origin.yaw_rad],
+    }
+    return SimSession(
+        InHomeFrame(backend, origin),
+        agent,
+        agent_config,
+        target_known=target_known,
+        open_timings=timings,
+        sim_backend=backend,
+        on_close=on_close,
+    )
 
 
 def open_episode_session(
@@ -310,6 +356,8 @@ def open_episode_session(
     agent_config_path: Path | None,
     worlds: WorldCache | None = None,
     realism: Realism | None = None,
+    memory: HomeSlot | None = None,
+    on_close: Callable[[], None] | None = None,
 ) -> SimSession:
     """A stored episode (its home at full size, its start, target and viewpoints) with the uploaded photo."""
     from sim.backend import SimBackend
@@ -341,4 +389,7 @@ def open_episode_session(
         ),
         agent_config_path,
         target_known=True,
+        memory=memory,
+        start_world=Pose2D(*episode.start_pose_world.as_tuple()),
+        on_close=on_close,
     )

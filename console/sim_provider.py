@@ -12,6 +12,9 @@ A run's target instance is known, and the run is scored (success, SPL, NE), when
 * an episode is chosen, or ``target_instance`` is given.
 Otherwise the run is unscored and its outcome says so.
 
+Runs in the same home share the agent's memory of that home (``console.home_memory``: one
+per home, kept in ``<data>/memory/``, never given to a run in another home).
+
 The simulator-specific calls live in ``console.sim_adapter``.
 """
 
@@ -32,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from agent.types import MAX_STEPS
+from console.home_memory import HomeMemories, HomeSlot, home_key
 from console.options import RunForm, SimRunOptions
 from console.photos import hamming
 from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession
@@ -74,6 +78,8 @@ class SimProvider:
         self._thread: threading.Thread | None = None
         self._episodes: Any = None
         self._worlds: Any = None  # sim_cache.WorldCache, made on first use (imports sim/)
+        self._memories: HomeMemories | None = None  # made on first use (reads the agent config)
+        self._memory_dir = Path(data_dir) / "memory"
         if config.episodes_dir is not None:
             from sim.episodes import load_episode_set
 
@@ -361,11 +367,45 @@ class SimProvider:
         logger.info("simulator home %s built ahead of the first run in %.1f s", first.id, seconds)
         return seconds
 
-    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
-        from console import sim_adapter
+    def memories(self) -> HomeMemories:
+        """The memories of the homes (``console.home_memory``), for the agent config's memory
+        bounds, mapping and matcher."""
+        with self._lock:
+            if self._memories is None:
+                from agent.config import load_agent_config
 
+                config = load_agent_config(self.config.agent_config_path or "sim")
+                self._memories = HomeMemories(self._memory_dir, config.memory, config.mapping, config.reid.matcher)
+            return self._memories
+
+    def memory_keys(self) -> list[str]:
+        """The homes that can have a memory: the catalogue's homes and the loaded episodes' scenes."""
+        keys = [home_key("home", h.seed) for h in self.homes.values()]
+        if self._episodes is not None:
+            keys += sorted({home_key("scene", e.scene_seed) for e in self._episodes})
+        return keys
+
+    @staticmethod
+    def memory_key(spec: SimRunOptions) -> str:
+        """The home a run is in: ``scene-<seed>`` for an episode (the full-size home), else ``home-<seed>``."""
+        return home_key("scene" if spec.episode is not None else "home", spec.home_seed)
+
+    def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         spec = resolved.spec
         assert isinstance(spec, SimRunOptions), spec
+        memories = self.memories()
+        slot = memories.acquire(self.memory_key(spec))
+        try:
+            return self._open(resolved, spec, goal_rgb, slot, lambda: memories.release(slot))
+        except BaseException:
+            memories.release(slot, save=False)
+            raise
+
+    def _open(
+        self, resolved: ResolvedRun, spec: SimRunOptions, goal_rgb: np.ndarray, slot: HomeSlot, on_close: Any
+    ) -> RunSession:
+        from console import sim_adapter
+
         if spec.episode is not None:
             return sim_adapter.open_episode_session(
                 episode=self._episodes.by_id(spec.episode),
@@ -374,6 +414,8 @@ class SimProvider:
                 agent_config_path=self.config.agent_config_path,
                 worlds=self.worlds(),
                 realism=self.config.realism,
+                memory=slot,
+                on_close=on_close,
             )
         target = resolved.target
         return sim_adapter.open_session(
@@ -387,6 +429,8 @@ class SimProvider:
             worlds=self.worlds(),
             realism=self.config.realism,
             run_key=f"home-{spec.home_seed}-{spec.start_pose_world}",  # a start's noise is repeatable
+            memory=slot,
+            on_close=on_close,
         )
 
     def close(self) -> None:

@@ -1,0 +1,412 @@
+"""The console's memory of each home (issue 31; docs/architecture.md section 11).
+
+Runs in the same simulator home share one ``agent.memory.HomeMemory`` (the map, keyframes and
+earlier goals): the second request in a home starts from what the first saw. A home's memory is
+its own, keyed by the home (``home-<seed>``: a catalogue home; ``scene-<seed>``: an episode's full
+home), and never given to a run in another home.
+
+**The frame.** A memory holds poses and points in one frame, the pose frame of the first run
+that filled it (its *anchor*, the world pose of that run's start). Each console simulator run
+starts at its own start pose and its backend reports poses relative to it, so a later run's
+backend is put in the memory's frame with ``agent.memory.InHomeFrame(backend, origin)``, origin
+being this run's start in the anchor's frame (``start_world.relative_to(anchor_world)``). In the
+simulator the console knows both true start poses: for the warm home this stands for the
+odometry of a robot that keeps its map between requests. The robot backend exposes no map frame
+(``robot.backend.StretchBackend`` reports poses from its own start), so runs on the robot get
+no memory: a memory kept across them would put every remembered point in the wrong place.
+
+**On disk.** ``<data>/memory/<home>.npz``, written when a run in the home ends (atomically:
+a temporary file, then a rename), read lazily the first time the home is asked for. No pickle:
+the arrays are the archive's members (read with ``allow_pickle=False``) and everything else is
+one JSON member (``meta``) whose tree names its arrays. A file that cannot be read, or that was
+written for another format, mapping or matcher, is logged as an error, moved aside
+(``<home>.unreadable-<time>.npz``, never deleted) and the home starts with an empty memory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import logging
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from agent.types import CandidateInfo, Pose2D
+
+if TYPE_CHECKING:  # agent.memory imports torch: not before console.agents.passive_openmp_wait
+    from agent.mapping import MappingConfig
+    from agent.memory import HomeMemory, MemoryConfig
+
+logger = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+HOME_KEY = re.compile(r"^(home|scene)-\d{1,9}$")
+
+
+class MemoryInUse(RuntimeError):
+    """The home's memory is being used by the active run (HTTP 409 to forget it)."""
+
+
+class MemoryFileError(ValueError):
+    """A memory file that cannot be read back (its reason says why)."""
+
+
+def home_key(kind: str, seed: int) -> str:
+    """The memory's key of a simulator home: ``home-<seed>`` (catalogue) or ``scene-<seed>`` (episode)."""
+    key = f"{kind}-{int(seed)}"
+    if not HOME_KEY.match(key):
+        raise ValueError(f"no home key {key!r}")
+    return key
+
+
+# --- the file format ---------------------------------------------------------------------
+
+
+class _Arrays:
+    """The arrays of one file, named ``a0``, ``a1``, ... in the order they are met."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def add(self, a: np.ndarray) -> str:
+        if a.dtype.kind not in "biufc":
+            raise ValueError(f"cannot store an array of dtype {a.dtype}")
+        name = f"a{len(self.arrays)}"
+        self.arrays[name] = np.ascontiguousarray(a)
+        return name
+
+
+def _encode(value: Any, arrays: _Arrays) -> Any:
+    """A matcher payload (packed by ``agent.memory._pack``) as a JSON tree naming its arrays."""
+    from agent.memory import _Tensor
+
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, float)):
+        return value
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, _Tensor):
+        return {"tensor": arrays.add(value.array), "dtype": str(value.dtype).removeprefix("torch.")}
+    if isinstance(value, np.ndarray):
+        return {"array": arrays.add(value)}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise ValueError("only string keys can be stored")
+        return {"dict": {k: _encode(v, arrays) for k, v in value.items()}}
+    if isinstance(value, (list, tuple)):
+        return {"tuple" if isinstance(value, tuple) else "list": [_encode(v, arrays) for v in value]}
+    raise ValueError(f"cannot store a {type(value).__name__}")
+
+
+def _decode(node: Any, arrays: Any) -> Any:
+    import torch
+
+    from agent.memory import _Tensor
+
+    if node is None or isinstance(node, (bool, str, int, float)):
+        return node
+    if not isinstance(node, dict) or len(node) not in (1, 2):
+        raise MemoryFileError(f"unexpected node {str(node)[:80]}")
+    if "tensor" in node:
+        dtype = getattr(torch, str(node["dtype"]), None)
+        if not isinstance(dtype, torch.dtype):
+            raise MemoryFileError(f"unknown tensor dtype {node['dtype']!r}")
+        return _Tensor(np.array(arrays[node["tensor"]]), dtype)
+    if "array" in node:
+        return np.array(arrays[node["array"]])
+    if "dict" in node:
+        return {str(k): _decode(v, arrays) for k, v in node["dict"].items()}
+    if "list" in node:
+        return [_decode(v, arrays) for v in node["list"]]
+    if "tuple" in node:
+        return tuple(_decode(v, arrays) for v in node["tuple"])
+    raise MemoryFileError(f"unexpected node {str(node)[:80]}")
+
+
+def _pose(p: Pose2D) -> list[float]:
+    return [p.x_m, p.y_m, p.yaw_rad]
+
+
+def _unpose(v: Any) -> Pose2D:
+    x, y, yaw = (float(t) for t in v)
+    return Pose2D(x, y, yaw)
+
+
+def memory_bytes(memory: HomeMemory, anchor_world: Pose2D | None) -> bytes:
+    """The memory as one ``.npz`` archive (see the module docstring)."""
+    arrays = _Arrays()
+    grid = None
+    if memory.grid is not None:
+        g = memory.grid
+        grid = {
+            "mapping": dataclasses.asdict(g.config),
+            "origin_ij": list(g.origin_ij),
+            "layers": {n: arrays.add(getattr(g.layers, n)) for n in g.layers.names()},
+        }
+    keyframes = [
+        {
+            "id": kf.id,
+            "goal_index": kf.goal_index,
+            "step": kf.step,
+            "pose": _pose(kf.pose),
+            "matcher": kf.matcher,
+            "keypoints_xy": arrays.add(kf.keypoints_xy),
+            "descriptors": _encode(kf.descriptors, arrays),
+            "image_size_wh": list(kf.image_size_wh),
+            "points_xyz": arrays.add(kf.points_xyz),
+            "extra": _encode(kf.extra, arrays),
+        }
+        for kf in memory.keyframes
+    ]
+    meta = {
+        "format": FORMAT_VERSION,
+        "saved_s": time.time(),
+        "anchor_world": None if anchor_world is None else _pose(anchor_world),
+        "goal_index": memory.goal_index,
+        "matcher": memory.matcher,
+        "last_pose": None if memory.last_pose is None else _pose(memory.last_pose),
+        "next_id": max((kf.id for kf in memory.keyframes), default=-1) + 1,
+        "goals": [dataclasses.asdict(g) for g in memory.goals],
+        "grid": grid,
+        "keyframes": keyframes,
+    }
+    text = json.dumps(meta).encode()
+    buf = io.BytesIO()
+    np.savez(buf, meta=np.frombuffer(text, np.uint8), **arrays.arrays)  # type: ignore[arg-type]
+    return buf.getvalue()
+
+
+def memory_from_bytes(
+    data: bytes, config: MemoryConfig, mapping: MappingConfig, matcher: str
+) -> tuple[HomeMemory, Pose2D | None]:
+    """A memory and its anchor read back; ``MemoryFileError`` when the bytes are not one written
+    by ``memory_bytes`` of this format, for this ``mapping`` config and ``matcher``."""
+    from agent.mapping import GridMap, MapLayers
+    from agent.memory import GoalSummary, HomeMemory, Keyframe
+
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            arrays = {name: z[name] for name in z.files}
+        meta = json.loads(arrays.pop("meta").tobytes().decode())
+    except MemoryFileError:
+        raise
+    except Exception as exc:  # zip, npy header, JSON: all say the same thing
+        raise MemoryFileError(f"not a memory archive ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_VERSION:
+        raise MemoryFileError(
+            f"format {meta.get('format') if isinstance(meta, dict) else None!r}, not {FORMAT_VERSION}"
+        )
+    try:
+        memory = HomeMemory(config)
+        if meta["matcher"] is not None and meta["matcher"] != matcher:
+            raise MemoryFileError(f"kept {meta['matcher']} descriptors, the agent uses {matcher}")
+        grid_meta = meta["grid"]
+        if grid_meta is not None:
+            if grid_meta["mapping"] != dataclasses.asdict(mapping):
+                raise MemoryFileError("the map was made with another mapping config")
+            grid = GridMap(mapping)
+            layers = {n: arrays[grid_meta["layers"][n]] for n in grid.layers.names()}
+            shapes = {a.shape for a in layers.values()}
+            if len(shapes) != 1 or any(a.dtype != bool or a.ndim != 2 for a in layers.values()):
+                raise MemoryFileError("the map's layers are not (H, W) bool arrays of one shape")
+            grid.layers = MapLayers(**layers)
+            grid.origin_ij = (int(grid_meta["origin_ij"][0]), int(grid_meta["origin_ij"][1]))
+            memory.grid = grid
+        memory.goal_index = int(meta["goal_index"])
+        memory.matcher = meta["matcher"]
+        memory.last_pose = None if meta["last_pose"] is None else _unpose(meta["last_pose"])
+        memory.goals = [
+            GoalSummary(**{**g, "candidates": tuple(CandidateInfo(**c) for c in g["candidates"])})
+            for g in meta["goals"]
+        ]
+        keyframes = []
+        for k in meta["keyframes"]:
+            kp = np.asarray(arrays[k["keypoints_xy"]], np.float32)
+            pts = np.asarray(arrays[k["points_xyz"]], np.float32)
+            if kp.ndim != 2 or kp.shape[1] != 2 or pts.shape != (len(kp), 3):
+                raise MemoryFileError(f"keyframe {k['id']}: keypoints {kp.shape} and points {pts.shape} disagree")
+            keyframes.append(
+                Keyframe(
+                    int(k["id"]),
+                    int(k["goal_index"]),
+                    int(k["step"]),
+                    _unpose(k["pose"]),
+                    str(k["matcher"]),
+                    kp,
+                    _decode(k["descriptors"], arrays),
+                    (int(k["image_size_wh"][0]), int(k["image_size_wh"][1])),
+                    pts,
+                    _decode(k["extra"], arrays),
+                )
+            )
+        memory.restore(keyframes, int(meta["next_id"]))
+        anchor = None if meta["anchor_world"] is None else _unpose(meta["anchor_world"])
+    except MemoryFileError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise MemoryFileError(f"malformed memory ({type(exc).__name__}: {exc})") from exc
+    return memory, anchor
+
+
+# --- the memories of the homes ---------------------------------------------------------
+
+
+@dataclass(eq=False)
+class HomeSlot:
+    """One home's memory and the world pose of its frame (None until a run fills it)."""
+
+    key: str
+    memory: HomeMemory
+    anchor_world: Pose2D | None = None
+    in_use: bool = False
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def origin_for(self, start_world: Pose2D) -> Pose2D:
+        """The pose of a run's start in the memory's frame; an empty memory takes this start as
+        its frame (module docstring, "The frame")."""
+        if self.anchor_world is None or (self.memory.grid is None and len(self.memory) == 0):
+            self.anchor_world = start_world
+        if start_world == self.anchor_world:  # exactly the identity, as a backend's own start pose is
+            return Pose2D()
+        return start_world.relative_to(self.anchor_world)
+
+
+class HomeMemories:
+    """The memories of the simulator's homes, one per home key, loaded lazily from
+    ``directory`` and saved there when a run ends. Thread-safe: the run's worker uses a memory
+    (``acquire`` ... ``release``) while the API reads it."""
+
+    def __init__(self, directory: Path, config: MemoryConfig, mapping: MappingConfig, matcher: str) -> None:
+        self.dir = Path(directory)
+        self.config = config
+        self.mapping = mapping
+        self.matcher = matcher
+        self._lock = threading.Lock()
+        self._slots: dict[str, HomeSlot] = {}
+
+    def path(self, key: str) -> Path:
+        if not HOME_KEY.match(key):
+            raise ValueError(f"no home key {key!r}")
+        return self.dir / f"{key}.npz"
+
+    def slot(self, key: str) -> HomeSlot:
+        """The home's memory: the one in use, else read from its file, else a new empty one."""
+        from agent.memory import HomeMemory
+
+        path = self.path(key)
+        with self._lock:
+            slot = self._slots.get(key)
+            if slot is None:
+                slot = HomeSlot(key, HomeMemory(self.config))
+                if path.is_file():
+                    try:
+                        slot.memory, slot.anchor_world = memory_from_bytes(
+                            path.read_bytes(), self.config, self.mapping, self.matcher
+                        )
+                        logger.info("memory of %s read from %s (%d keyframes)", key, path, len(slot.memory))
+                    except (OSError, MemoryFileError) as exc:
+                        aside = path.with_name(f"{key}.unreadable-{time.strftime('%Y%m%d-%H%M%S')}.npz")
+                        logger.error(
+                            "the memory of %s in %s cannot be used (%s): it is moved to %s and %s starts with an "
+                            "empty memory",
+                            key,
+                            path,
+                            exc,
+                            aside,
+                            key,
+                        )
+                        try:
+                            path.replace(aside)
+                        except OSError:
+                            logger.exception("moving %s aside failed", path)
+                self._slots[key] = slot
+            return slot
+
+    def acquire(self, key: str) -> HomeSlot:
+        """The home's memory for a run (one run at a time uses it)."""
+        slot = self.slot(key)
+        with self._lock:
+            if slot.in_use:
+                raise MemoryInUse(f"the memory of {key} is in use by another run")
+            slot.in_use = True
+        return slot
+
+    def release(self, slot: HomeSlot, save: bool = True) -> None:
+        """The run has ended: save the memory (errors logged; the memory stays in this process)."""
+        try:
+            if save:
+                self.save(slot)
+        finally:
+            with self._lock:
+                slot.in_use = False
+
+    def save(self, slot: HomeSlot) -> None:
+        path = self.path(slot.key)
+        try:
+            with slot.lock:
+                data = memory_bytes(slot.memory, slot.anchor_world)
+            self.dir.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f".{slot.key}.tmp")
+            tmp.write_bytes(data)
+            tmp.replace(path)
+            logger.info(
+                "memory of %s saved to %s (%d keyframes, %d bytes)", slot.key, path, len(slot.memory), len(data)
+            )
+        except Exception:
+            logger.exception("saving the memory of %s to %s failed", slot.key, path)
+
+    def forget(self, key: str) -> bool:
+        """Forget a home: its memory emptied and its file removed. ``MemoryInUse`` while a run uses
+        it. True if there was something to forget."""
+        path = self.path(key)
+        with self._lock:
+            slot = self._slots.get(key)
+            if slot is not None and slot.in_use:
+                raise MemoryInUse(f"a run in {key} is using its memory: stop it first")
+            had = path.is_file() or (slot is not None and (len(slot.memory) > 0 or slot.memory.goals != []))
+            self._slots.pop(key, None)
+            path.unlink(missing_ok=True)
+        logger.info("memory of %s forgotten", key)
+        return had
+
+    def summary(self, key: str) -> dict[str, Any]:
+        """What the home's memory holds, as plain JSON (``HomeMemory.summary`` plus the home)."""
+        slot = self.slot(key)
+        for _ in range(5):  # the run's worker may change the memory while it is read
+            try:
+                s = slot.memory.summary()
+                break
+            except RuntimeError:
+                time.sleep(0.01)
+        else:
+            s = slot.memory.summary()
+        return {"home": key, "in_use": slot.in_use, "saved": self.path(key).is_file(), **s}
+
+    def map_png(self, key: str, size_px: int = 480) -> bytes:
+        """The remembered map with the known objects (final candidates of the goals) and the
+        last pose, as a PNG; an empty picture when nothing is remembered."""
+        from PIL import Image
+
+        from console.pictures import render_map
+
+        slot = self.slot(key)
+        memory = slot.memory
+        snapshot = memory.grid.snapshot() if memory.grid is not None else None
+        points = [c.xy_m for g in memory.goals for c in g.candidates if c.state != "rejected"]
+        rgb, _ = render_map(
+            snapshot,
+            pose=memory.last_pose,
+            extra_points_xy_m=np.asarray(points, np.float64).reshape(-1, 2),
+            size_px=size_px,
+        )
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, format="PNG")
+        return buf.getvalue()

@@ -1,0 +1,87 @@
+"""Runs in one simulator home share the agent's memory of it, in one frame, and the memory
+survives a console restart (issue 31; console/home_memory.py), with the real simulator and agent."""
+
+from __future__ import annotations
+
+import io
+import shutil
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from agent.types import Pose2D
+from console.api import create_app
+from tests.helpers.console_live import poll, sim_console
+
+FINAL = ("finished", "stopped", "failed", "interrupted")
+
+
+@pytest.fixture
+def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
+    data = tmp_path / "data"
+    shutil.copytree(sim_data_dir / "sim", data / "sim")
+    return data
+
+
+def run(client: TestClient, home: dict, start: str, max_steps: int) -> dict:
+    g = home["gallery"][0]
+    png = client.get(g["url"]).content
+    resp = client.post(
+        "/api/runs",
+        files={"goal_image": ("g.png", png, "image/png")},
+        data={"home": home["id"], "start": start, "gallery_item": g["item"], "max_steps": str(max_steps)},
+    )
+    assert resp.status_code == 201, resp.text
+    run_id = resp.json()["id"]
+    done = poll(lambda: client.get(f"/api/runs/{run_id}").json(), lambda r: r["status"] in FINAL, 900, "run end")
+    assert done["status"] == "finished", done
+    return client.get(f"/api/runs/{run_id}", params={"steps": True}).json()
+
+
+def test_runs_in_a_home_share_its_memory_in_one_frame_and_a_restart_keeps_it(data_dir: Path) -> None:
+    console = sim_console(data_dir)
+    with TestClient(create_app(console)) as client:
+        home = client.get("/api/backends/sim").json()["homes"][0]
+        key = home["id"]  # home-<seed>: the memory's key
+        a, b = home["starts"][0]["id"], home["starts"][1]["id"]
+        assert client.get(f"/api/memory/{key}").json()["goals"] == []
+
+        first = run(client, home, a, 6)
+        assert first["agent_config"]["memory_home"] == key
+        assert first["agent_config"]["memory_origin"] == [0.0, 0.0, 0.0]  # its start is the memory's frame
+        mem1 = client.get(f"/api/memory/{key}").json()
+        assert len(mem1["goals"]) == 1 and mem1["goals"][0]["steps"] == first["n_steps"]
+        assert mem1["keyframes"] > 0 and mem1["map_bytes"] > 0 and not mem1["in_use"] and mem1["saved"]
+
+        second = run(client, home, b, 4)
+        start_a = Pose2D(*first["options"]["start_pose_world"])
+        start_b = Pose2D(*second["options"]["start_pose_world"])
+        origin = start_b.relative_to(start_a)  # b's start in the frame of a's start
+        assert second["agent_config"]["memory_origin"] == pytest.approx([origin.x_m, origin.y_m, origin.yaw_rad])
+        s0 = second["steps"][0]  # the run's poses are in the memory's frame
+        assert [s0["x_m"], s0["y_m"], s0["yaw_rad"]] == pytest.approx([origin.x_m, origin.y_m, origin.yaw_rad])
+        mem2 = client.get(f"/api/memory/{key}").json()
+        assert [g["goal_index"] for g in mem2["goals"]] == [0, 1]
+        assert mem2["goals"][1]["keyframes_at_start"] == mem1["keyframes"]  # the second goal began with the first's
+        assert mem2["goals"][0] == mem1["goals"][0]
+    # a new console on the same data directory
+    console2 = sim_console(data_dir)
+    with TestClient(create_app(console2)) as client:
+        back = client.get(f"/api/memory/{key}").json()
+        assert {k: back[k] for k in ("keyframes", "keyframe_bytes", "map_bytes", "goals")} == {
+            k: mem2[k] for k in ("keyframes", "keyframe_bytes", "map_bytes", "goals")
+        }
+        png = client.get(back["map_url"])
+        assert png.status_code == 200 and Image.open(io.BytesIO(png.content)).format == "PNG"
+        third = run(client, home, b, 2)  # the restored memory, in the same frame as before the restart
+        assert third["agent_config"]["memory_origin"] == pytest.approx([origin.x_m, origin.y_m, origin.yaw_rad])
+        mem3 = client.get(f"/api/memory/{key}").json()
+        assert [g["goal_index"] for g in mem3["goals"]] == [0, 1, 2]
+        assert mem3["goals"][2]["keyframes_at_start"] == mem2["keyframes"]
+        # forgetting the home: the next run starts from nothing, in its own start's frame
+        assert client.delete(f"/api/memory/{key}").json() == {"home": key, "forgotten": True}
+        fourth = run(client, home, b, 2)
+        assert fourth["agent_config"]["memory_origin"] == [0.0, 0.0, 0.0]
+        assert [g["goal_index"] for g in client.get(f"/api/memory/{key}").json()["goals"]] == [0]
