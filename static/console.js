@@ -50,6 +50,54 @@
   };
   fillHomes();
 
+  // The memory of the selected simulator home (GET /api/memory/{home}): its map, the objects of
+  // earlier requests (each request's final candidates that were not rejected), and forgetting it.
+  let memoryHome = null;
+  const homeChosen = () => {
+    const sel = document.getElementById("sim-home");
+    const backend = document.getElementById("backend");
+    return backend && backend.value === "sim" && sel && !sel.disabled ? sel.value : null;
+  };
+  async function refreshMemory() {
+    const home = homeChosen();
+    memoryHome = home;
+    $("memory-card").hidden = !home;
+    if (!home) return;
+    $("memory-home").textContent = home;
+    let m;
+    try { m = await imgnav.getJSON(`/api/memory/${encodeURIComponent(home)}`); }
+    catch (e) { $("memory-error").textContent = e.message; return; }
+    if (memoryHome !== home) return;  // another home was chosen meanwhile
+    $("memory-error").textContent = "";
+    const requests = m.goals.length;
+    $("memory-words").textContent = requests
+      ? `${requests} ${requests === 1 ? "request" : "requests"} in this home; ${m.keyframes} remembered views `
+        + `(${fmt((m.keyframe_bytes + m.map_bytes) / 1e6, 1)} MB).${m.in_use ? " A run is adding to it now." : ""}`
+      : "Nothing yet: the next run here starts from nothing, and later runs start from what it saw.";
+    $("memory-map").hidden = !requests;
+    if (requests) $("memory-map").src = `${m.map_url}?t=${Date.now()}`;
+    const list = $("memory-objects");
+    list.replaceChildren();
+    for (const g of m.goals) {
+      for (const c of g.candidates.filter((c) => c.state !== "rejected")) {
+        list.append(el("li", { text: `request ${g.goal_index + 1}: ${c.state} object at (${fmt(c.xy_m[0], 1)}, ${fmt(c.xy_m[1], 1)}) m, best score ${fmt(c.best_score, 1)}` }));
+      }
+    }
+    if (!list.children.length) list.append(el("li", { class: "hint", text: "no object found yet" }));
+    $("memory-forget").disabled = !requests || m.in_use;
+  }
+  $("memory-forget").addEventListener("click", async () => {
+    const home = memoryHome;
+    if (!home) return;
+    const headers = imgnav.token() ? { "X-Imgnav-Token": imgnav.token() } : {};
+    const resp = await fetch(`/api/memory/${encodeURIComponent(home)}`, { method: "DELETE", headers });
+    if (!resp.ok) { $("memory-error").textContent = await imgnav.describeError(resp); return; }
+    log(`the memory of ${home} is forgotten`);
+    await refreshMemory();
+  });
+  $("backend-form").addEventListener("change", () => refreshMemory().catch((e) => log(e.message)));
+  await refreshMemory();
+
   function setBadge() {
     const b = $("active-run");
     if (!reachable) { b.replaceChildren("console unreachable"); b.className = "badge failed"; return; }
@@ -211,7 +259,7 @@
 
   let refreshTimer = null;
   imgnav.follow("/api/events", (ev) => {
-    if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load().then(fillHomes); return; }
+    if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load().then(fillHomes).then(refreshMemory); return; }
     if (ev.kind === "step") {  // keep the active run's row current without reloading the list
       const row = $("runs").querySelector(`tr[data-run="${ev.run_id}"]`);
       if (row) row.children[2].textContent = String(ev.step + 1);
@@ -226,6 +274,7 @@
         showLiveEnd(ev.run_id).catch((e) => log(`run ${ev.run_id}: ${e.message}`));
       }
       log(`run ${ev.run_id}: ${ev.status}${ev.detail ? ` (${ev.detail})` : ""}`);
+      if (["running", "finished", "stopped", "failed", "interrupted"].includes(ev.status)) refreshMemory().catch(() => {});
       clearTimeout(refreshTimer);
       refreshTimer = setTimeout(async () => { await refreshRuns(); if (selected === ev.run_id) showRun(ev.run_id); }, 150);
     }

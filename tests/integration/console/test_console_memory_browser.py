@@ -1,0 +1,85 @@
+"""The console page's memory panel (issue 31) in a real headless Chromium, with the real
+simulator and agent: empty before the first run in a home, its map and known objects after one,
+and Forget empties it."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.helpers.console_live import ARTIFACTS, LiveServer, poll, sim_console
+
+pytestmark = pytest.mark.browser
+
+FINAL = ("finished", "stopped", "failed", "interrupted")
+
+
+@pytest.fixture
+def server(sim_data_dir: Path, tmp_path: Path) -> Iterator[LiveServer]:
+    data = tmp_path / "data"
+    shutil.copytree(sim_data_dir / "sim", data / "sim")
+    live = LiveServer(sim_console(data, viewer=False))
+    yield live
+    live.close()
+
+
+def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser, server: LiveServer) -> None:
+    import httpx
+
+    from tests.helpers.a11y import check_page
+
+    _, b = browser
+    page = b.new_context(viewport={"width": 1440, "height": 900}).new_page()
+    errors: list[str] = []
+    page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+    page.goto(server.url + "/console")
+    page.wait_for_selector("#sim-home")
+    home = page.input_value("#sim-home")
+    poll(lambda: page.is_visible("#memory-card"), bool, 30, "memory card")
+    assert page.text_content("#memory-home") == home
+    poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("Nothing yet"), 30, "empty memory")
+    assert page.is_disabled("#memory-forget") and not page.is_visible("#memory-map")
+
+    # a run in this home (started through the API; the page follows the console's events)
+    desc = httpx.get(f"{server.url}/api/backends/sim").json()["homes"][0]
+    g = desc["gallery"][0]
+    png = httpx.get(server.url + g["url"]).content
+    resp = httpx.post(
+        f"{server.url}/api/runs",
+        files={"goal_image": ("g.png", png, "image/png")},
+        data={"home": home, "gallery_item": g["item"], "max_steps": "5"},
+    )
+    assert resp.status_code == 201, resp.text
+    run_id = resp.json()["id"]
+    poll(lambda: httpx.get(f"{server.url}/api/runs/{run_id}").json()["status"], lambda s: s in FINAL, 600, "run end")
+    memory = httpx.get(f"{server.url}/api/memory/{home}").json()
+    assert len(memory["goals"]) == 1 and not memory["in_use"]
+
+    poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("1 request"), 30, "memory words")
+    assert f"{memory['keyframes']} remembered views" in (page.text_content("#memory-words") or "")
+    poll(
+        lambda: page.evaluate("() => document.getElementById('memory-map').naturalWidth"),
+        lambda w: w == 480,
+        30,
+        "memory map loaded",
+    )
+    kept = [c for c in memory["goals"][0]["candidates"] if c["state"] != "rejected"]
+    items = page.locator("#memory-objects li").all_text_contents()
+    if kept:
+        assert len(items) == len(kept) and all(t.startswith("request 1: ") for t in items), items
+    else:
+        assert items == ["no object found yet"]
+    assert not page.is_disabled("#memory-forget")
+    problems = check_page(page)
+    assert not problems, problems
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.locator("#memory-card").screenshot(path=str(ARTIFACTS / "memory_panel.png"))
+
+    page.click("#memory-forget")
+    poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("Nothing yet"), 30, "forgotten")
+    assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []
+    assert page.is_disabled("#memory-forget") and not page.is_visible("#memory-map")
+    assert not errors, errors
