@@ -251,7 +251,7 @@ def memory_from_bytes(
         anchor = None if meta["anchor_world"] is None else _unpose(meta["anchor_world"])
     except MemoryFileError:
         raise
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
+    except Exception as exc:  # any malformed member or field: the file is not one this module wrote
         raise MemoryFileError(f"malformed memory ({type(exc).__name__}: {exc})") from exc
     return memory, anchor
 

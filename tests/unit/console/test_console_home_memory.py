@@ -4,6 +4,7 @@ the file format, one memory per home, a corrupt file, forgetting, and the endpoi
 from __future__ import annotations
 
 import io
+import json
 import logging
 import math
 from collections.abc import Iterator
@@ -145,14 +146,30 @@ def test_a_corrupt_file_is_reported_kept_aside_and_the_home_starts_empty(
     (d / "home-0.npz").write_bytes(b"PK\x03\x04 not really a zip")
     good = memory_bytes(filled_memory(), None)
     (d / "home-1.npz").write_bytes(good[: len(good) // 2])  # cut short
+    # a well-formed archive whose JSON is not a memory's (a node of the wrong shape)
+    buf = io.BytesIO()
+    meta: dict[str, Any] = {
+        "format": 1,
+        "anchor_world": None,
+        "goal_index": 0,
+        "matcher": "xfeat",
+        "last_pose": None,
+        "next_id": 1,
+    }
+    meta |= {"goals": [], "grid": None, "keyframes": [{"id": 0, "goal_index": 0, "step": 0, "pose": [0, 0, 0]}]}
+    meta["keyframes"][0] |= {"matcher": "xfeat", "keypoints_xy": "a0", "points_xyz": "a1", "image_size_wh": [4, 4]}
+    meta["keyframes"][0] |= {"descriptors": {"dict": [1, 2]}, "extra": {"dict": {}}}
+    np.savez(buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), a0=np.zeros((2, 2)), a1=np.zeros((2, 3)))
+    (d / "home-2.npz").write_bytes(buf.getvalue())
     store = memories(tmp_path)
     with caplog.at_level(logging.ERROR, logger="console.home_memory"):
         assert store.summary("home-0")["keyframes"] == 0
         assert store.summary("home-1")["goals"] == []
+        assert store.summary("home-2")["keyframes"] == 0
     errors = [r.getMessage() for r in caplog.records if r.levelno == logging.ERROR]
-    assert len(errors) == 2 and all("cannot be used" in m and "moved to" in m for m in errors), errors
+    assert len(errors) == 3 and all("cannot be used" in m and "moved to" in m for m in errors), errors
     aside = sorted(p.name for p in d.glob("*.unreadable-*.npz"))
-    assert len(aside) == 2 and aside[0].startswith("home-0.") and aside[1].startswith("home-1.")
+    assert len(aside) == 3 and [a.split(".")[0] for a in aside] == ["home-0", "home-1", "home-2"]
     assert (d / aside[1]).read_bytes() == good[: len(good) // 2]  # kept as it was
     assert not (d / "home-0.npz").exists()
 
