@@ -20,6 +20,7 @@ class RunForm:
     gallery_item: str | None = None
     target_instance: str | None = None
     max_steps: int | None = None
+    memory: str | None = None  # simulator: "on" (default) or "off" (console.home_memory)
 
     @staticmethod
     def of(**values: Any) -> RunForm:
@@ -48,6 +49,7 @@ class SimRunOptions:
     start: str | None = None  # start id, "custom" or "random"
     episode: str | None = None
     episodes_dir: str | None = None
+    memory: str | None = None  # "off": this run neither starts from nor adds to the home's memory; None: it does
 
     def to_json(self) -> dict[str, Any]:
         out = {k: v for k, v in asdict(self).items() if v is not None}

@@ -287,6 +287,7 @@ class SimProvider:
                     "would overlap a wall or furniture there, or it is outside the home"
                 )
         max_steps = _check_max_steps(form.max_steps)
+        memory = _check_memory(form.memory)
 
         target: dict[str, Any] | None = None
         if form.gallery_item:
@@ -311,7 +312,12 @@ class SimProvider:
                 if dist <= DHASH_MAX_BITS:
                     target = _target(best, f"perceptual hash ({dist} of 64 bits differ)")
         spec = SimRunOptions(
-            home=home.id, home_seed=home.seed, start=start.id, start_pose_world=start.pose_world, max_steps=max_steps
+            home=home.id,
+            home_seed=home.seed,
+            start=start.id,
+            start_pose_world=start.pose_world,
+            max_steps=max_steps,
+            memory=memory,
         )
         return ResolvedRun("sim", spec, target)
 
@@ -320,7 +326,7 @@ class SimProvider:
         (the episode's own, or any other picture of the same instance)."""
         if self._episodes is None:
             raise OptionsError("no episode set is loaded (start the console with --episodes DIR)")
-        extra = form.given() - {"episode", "max_steps"}
+        extra = form.given() - {"episode", "max_steps", "memory"}
         if extra:
             raise OptionsError(f"an episode fixes home, start and target; drop {sorted(extra)}")
         try:
@@ -333,6 +339,7 @@ class SimProvider:
             home_seed=e.scene_seed,
             start_pose_world=tuple(e.start_pose_world.as_tuple()),
             max_steps=_check_max_steps(form.max_steps),
+            memory=_check_memory(form.memory),
         )
         target = {
             "instance_id": e.goal_instance_id,
@@ -393,6 +400,8 @@ class SimProvider:
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         spec = resolved.spec
         assert isinstance(spec, SimRunOptions), spec
+        if spec.memory == "off":  # from nothing, the home's memory left as it was
+            return self._open(resolved, spec, goal_rgb, None, None)
         memories = self.memories()
         slot = memories.acquire(self.memory_key(spec))
         try:
@@ -402,7 +411,12 @@ class SimProvider:
             raise
 
     def _open(
-        self, resolved: ResolvedRun, spec: SimRunOptions, goal_rgb: np.ndarray, slot: HomeSlot, on_close: Any
+        self,
+        resolved: ResolvedRun,
+        spec: SimRunOptions,
+        goal_rgb: np.ndarray,
+        slot: HomeSlot | None,
+        on_close: Any,
     ) -> RunSession:
         from console import sim_adapter
 
@@ -491,6 +505,15 @@ def _parse_start(home: HomeEntry, text: str | None) -> Start:
 def _shown_m(v: float, digits: int = 2) -> str:
     """A number as a message shows it: 1e308 as "1e+308", not its 309 digits (issue 33)."""
     return f"{v:.{digits}f}" if abs(v) < 1e6 else f"{v:.3g}"
+
+
+def _check_memory(value: str | None) -> str | None:
+    """The ``memory`` option: None (default, "on") or "off"."""
+    if value is None or value == "on":
+        return None
+    if value == "off":
+        return "off"
+    raise OptionsError(f"memory must be 'on' or 'off', not {value!r}")
 
 
 def _check_max_steps(n: int | None) -> int:

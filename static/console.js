@@ -215,6 +215,7 @@
     const form = new FormData();
     form.append("goal_image", photo, photoName);
     backendForm.fill(form);
+    if (homeChosen() && !$("memory-use").checked) form.append("memory", "off");
     $("start").disabled = true;
     try {
       const run = await imgnav.postForm("/api/runs", form);

@@ -93,6 +93,13 @@ async def start_run(
     ] = None,
     target_instance: Annotated[str | None, Form(description="the target instance id, if known")] = None,
     max_steps: Annotated[int | None, Form(description="step budget (default and maximum: 1000)")] = None,
+    memory: Annotated[
+        str | None,
+        Form(
+            description="simulator: 'on' (default) starts from what the robot remembers of the home and adds to "
+            "it; 'off' starts from nothing and leaves the home's memory as it was"
+        ),
+    ] = None,
     token: Annotated[str | None, Form(description="the console token when it is required")] = None,
 ) -> JSONResponse:
     received_s = time.time()
@@ -120,6 +127,7 @@ async def start_run(
         gallery_item=gallery_item,
         target_instance=target_instance,
         max_steps=max_steps,
+        memory=memory,
     )
     t1 = time.perf_counter()
     try:

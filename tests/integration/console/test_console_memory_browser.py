@@ -82,4 +82,21 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("Nothing yet"), 30, "forgotten")
     assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []
     assert page.is_disabled("#memory-forget") and not page.is_visible("#memory-map")
+
+    # unticked: the next run starts from nothing and leaves the memory as it is (stopped at once here)
+    page.uncheck("#memory-use")
+    page.click(f"#gallery figure[data-item='{g['item']}']")
+    poll(lambda: page.is_enabled("#start"), bool, 30, "start enabled")
+    page.click("#start")
+    poll(lambda: page.is_enabled("#stop"), bool, 60, "run active")
+    page.click("#stop")
+    runs = poll(
+        lambda: httpx.get(f"{server.url}/api/runs").json()["runs"],
+        lambda rs: rs and rs[0]["id"] != run_id and rs[0]["status"] in FINAL,
+        300,
+        "second run end",
+    )
+    assert runs[0]["options"]["memory"] == "off", runs[0]["options"]
+    assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []
+    assert (page.text_content("#memory-words") or "").startswith("Nothing yet")
     assert not errors, errors

@@ -25,13 +25,13 @@ def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
     return data
 
 
-def run(client: TestClient, home: dict, start: str, max_steps: int) -> dict:
+def run(client: TestClient, home: dict, start: str, max_steps: int, **options: str) -> dict:
     g = home["gallery"][0]
     png = client.get(g["url"]).content
     resp = client.post(
         "/api/runs",
         files={"goal_image": ("g.png", png, "image/png")},
-        data={"home": home["id"], "start": start, "gallery_item": g["item"], "max_steps": str(max_steps)},
+        data={"home": home["id"], "start": start, "gallery_item": g["item"], "max_steps": str(max_steps), **options},
     )
     assert resp.status_code == 201, resp.text
     run_id = resp.json()["id"]
@@ -85,3 +85,17 @@ def test_runs_in_a_home_share_its_memory_in_one_frame_and_a_restart_keeps_it(dat
         fourth = run(client, home, b, 2)
         assert fourth["agent_config"]["memory_origin"] == [0.0, 0.0, 0.0]
         assert [g["goal_index"] for g in client.get(f"/api/memory/{key}").json()["goals"]] == [0]
+        # a run with memory off: from nothing, and the home's memory stays as it was
+        kept = client.get(f"/api/memory/{key}").json()
+        fifth = run(client, home, a, 2, memory="off")
+        assert fifth["options"]["memory"] == "off" and "memory_home" not in fifth["agent_config"]
+        assert fifth["steps"][0]["x_m"] == 0.0 and fifth["steps"][0]["y_m"] == 0.0  # its own start's frame
+        after = client.get(f"/api/memory/{key}").json()
+        assert (after["goals"], after["keyframes"]) == (kept["goals"], kept["keyframes"])
+        g = home["gallery"][0]
+        bad = client.post(
+            "/api/runs",
+            files={"goal_image": ("g.png", client.get(g["url"]).content, "image/png")},
+            data={"home": home["id"], "memory": "sometimes"},
+        )
+        assert bad.status_code == 422 and "memory must be" in bad.json()["detail"]["message"]

@@ -239,6 +239,29 @@ def test_runs_in_one_home_share_its_memory_and_runs_in_another_home_do_not(
     assert provider.memory_key(SimRunOptions(4, (0, 0, 0), 5, episode="e1")) == "scene-4"
 
 
+def test_a_run_with_memory_off_starts_from_nothing_and_leaves_the_home_as_it_was(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from console.session import OptionsError
+    from console.sim_provider import _check_memory
+
+    given: list[Any] = []
+
+    def fake_open_session(**kw: Any) -> Any:
+        given.append(kw)
+        return object()
+
+    monkeypatch.setattr(sim_adapter, "open_session", fake_open_session)
+    provider = SimProvider(tmp_path)
+    off = ResolvedRun("sim", SimRunOptions(0, (1.0, 1.0, 0.0), 5, home="home-0", memory="off"), None)
+    provider.open(off, np.zeros((8, 8, 3), np.uint8))
+    assert given[0]["memory"] is None and given[0]["on_close"] is None
+    assert not provider.memories().slot("home-0").in_use and not (tmp_path / "memory").exists()
+    assert [_check_memory(v) for v in (None, "on", "off")] == [None, None, "off"]
+    with pytest.raises(OptionsError, match="memory must be"):
+        _check_memory("maybe")
+
+
 def test_a_run_that_fails_to_open_releases_the_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     def failing(**kw: Any) -> Any:
         raise RuntimeError("no world")
