@@ -247,10 +247,9 @@
   // The end of the run in the live card: its last recorded step and its outcome.
   async function showLiveEnd(runId) {
     liveEnded = runId;
-    const [r, last] = await Promise.all([
-      imgnav.getJSON(`/api/runs/${runId}`),
-      imgnav.getJSON(`/api/runs/${runId}/replay/latest`).catch(() => null),
-    ]);
+    const r = await imgnav.getJSON(`/api/runs/${runId}`);
+    // a run that ended before its first step has no step to show (asking would be a 404)
+    const last = r.n_steps > 0 ? await imgnav.getJSON(`/api/runs/${runId}/replay/latest`).catch(() => null) : null;
     if ($("live-id").textContent !== runId) return;
     if (last) showLive(last);
     $("live-state").textContent = ` (ended: ${r.summary ? r.summary.headline : r.status})`;

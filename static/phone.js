@@ -104,10 +104,9 @@
 
   async function finish(id) {
     clearInterval(clock);
-    const [r, last] = await Promise.all([
-      imgnav.getJSON(`/api/runs/${id}`),
-      imgnav.getJSON(`/api/runs/${id}/replay/latest`).catch(() => null),
-    ]);
+    const r = await imgnav.getJSON(`/api/runs/${id}`);
+    // a run that ended before its first step has no step to show (asking would be a 404)
+    const last = r.n_steps > 0 ? await imgnav.getJSON(`/api/runs/${id}/replay/latest`).catch(() => null) : null;
     $("run-outcome").replaceChildren(imgnav.summary(r));
     $("run-outcome").hidden = false;
     $("run-phase").hidden = true;  // the outcome above says how it ended

@@ -35,6 +35,8 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     page = b.new_context(viewport={"width": 1440, "height": 900}).new_page()
     errors: list[str] = []
     page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+    failed: list[str] = []  # the console message of a failed load does not name the URL
+    page.on("response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None)
     page.goto(server.url + "/console")
     page.wait_for_selector("#sim-home")
     home = page.input_value("#sim-home")
@@ -99,4 +101,4 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     assert runs[0]["options"]["memory"] == "off", runs[0]["options"]
     assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []
     assert (page.text_content("#memory-words") or "").startswith("Nothing yet")
-    assert not errors, errors
+    assert not errors, (errors, failed)
