@@ -58,16 +58,9 @@ def evaluate(
     cluster: Candidate, localiser: GoalLocaliser, tau: float, confirmed_steps: frozenset[int] = frozenset()
 ) -> GoalCandidate:
     """The candidate's state from its views: a detection (score >= tau) confirms it, and so do
-    the views in ``confirmed_steps`` whatever their score (looks from the verify ring).
-
-    A remembered view (``agent.memory``: a keyframe of an earlier goal, negative view id) says
-    where to look, never that the goal is there: it makes a potential candidate, verified by
-    approach like any. Recall takes the best of up to hundreds of keyframes, so a high score
-    among them is likelier a look-alike than one live frame's, and the object may have moved
-    since (on valseq30 a remembered 93 against tau 75 sent the robot to stop at the wrong
-    object: docs/experiments/memory.md)."""
+    the views in ``confirmed_steps`` whatever their score (looks from the verify ring)."""
     views = tuple(v for v in (localiser.view(f) for f in cluster.frames) if v is not None)
-    confirming = [v for v in views if v.step in confirmed_steps or (v.score >= tau and v.step >= 0)]
+    confirming = [v for v in views if v.step in confirmed_steps or v.score >= tau]
     state = CandidateState.CONFIRMED if confirming else CandidateState.POTENTIAL
     return GoalCandidate(cluster, state, views)
 

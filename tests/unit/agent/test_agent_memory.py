@@ -329,7 +329,7 @@ def test_the_recall_stops_an_unrelated_keyframe_at_the_exit_layer_and_scores_a_m
 def test_a_goal_seen_before_is_localised_from_memory_and_approached_without_exploring():
     """Goal A (red, behind the start): the look-around sees the blue box first and is kept as
     keyframes. Goal B (blue): scored against the memory at reset, before any new frame, it is a
-    potential candidate at the blue box (live looks confirm it), and the robot heads there at once: no look-around, no
+    confirmed candidate at the blue box, and the robot heads there at once: no look-around, no
     exploring, and it stops at it. Goal B's backend starts its poses again where A ended;
     ``InHomeFrame`` puts them back in A's frame."""
     world, red, blue, _ = room()
@@ -349,8 +349,7 @@ def test_a_goal_seen_before_is_localised_from_memory_and_approached_without_expl
     agent.reset(framed.reset().goal_image)
     # before the first step: candidates from remembered views (negative view ids), at the blue box
     cands = agent._evaluate(agent.localiser.candidates(agent.grid, agent.tau))
-    # a remembered view says where to look, not that the goal is there: potential until a live look
-    assert cands and cands[0].state.value == "potential"
+    assert cands and cands[0].state.value == "confirmed"
     assert all(v.step < 0 for v in cands[0].views)
     x0, y0, x1, y1, _ = world.boxes[blue]
     cx, cy = cands[0].cluster.centroid_xy_m
@@ -366,11 +365,8 @@ def test_a_goal_seen_before_is_localised_from_memory_and_approached_without_expl
         if action == Action.STOP:
             break
         obs = framed.observe()
-    assert b[0].mode in (Mode.APPROACH.value, Mode.VERIFY.value) and b[0].candidate_id is not None
-    assert {r.mode for r in b} <= {"approach", "verify", "stopped"}
-    # confirmed by a live look before the stop
-    last = {c.id: c for c in b[-1].candidates}
-    assert b[-1].candidate_id is not None and last[b[-1].candidate_id].state == "confirmed"
+    assert b[0].mode == Mode.APPROACH.value and b[0].candidate_id is not None
+    assert {r.mode for r in b} <= {"approach", "stopped"}
     assert b[-1].event == "stop_at_goal" and world.distance_to_goal() < 1.0
     # the map's geometry carried over: the first step of goal B already has goal A's obstacles
     assert b[0].map is not None and b[0].map.obstacle.sum() >= a[-1].map.obstacle.sum()
