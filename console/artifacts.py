@@ -93,13 +93,18 @@ class ArtifactWriter:
             png_bytes, self._goal_png = self._goal_png, None
             (self.dir / "goal.png").write_bytes(png_bytes())
 
-    def add_step(self, rec: StepRecord) -> None:
-        self._last = rec
+    def add_replay(self, rec: StepRecord) -> None:
+        """Store the step's replay row (pictures, extras). Called before the step is announced, so a
+        client that hears of step N can load its pictures."""
         if self.replay is not None:
             try:
                 self.replay.add(rec)
             except Exception:  # the replay is a record of the run, never a reason to end it
                 logger.exception("replay: step %d of run %s not recorded", rec.step, self.replay.run_id)
+
+    def add_step(self, rec: StepRecord) -> None:
+        """The step's video frame (every ``stride``-th step); the replay row is ``add_replay``'s."""
+        self._last = rec
         if rec.step % self._stride:
             return
         map_rgb, _ = self._map(rec, size_px=self.frame_height_px)

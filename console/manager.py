@@ -464,6 +464,7 @@ class _RunSink:
         self.traj_rows.append(row_json)
         for k, v in row.timings.items():
             self.part_sums[k] = self.part_sums.get(k, 0.0) + float(v)
+        self.writer.add_replay(rec)  # before the step event: a client told of step N finds its pictures
         self.manager._publish_step(rec, row, row_json)
         self.writer.add_step(rec)
         if s.step == 0:  # goal.png: not needed before the first action

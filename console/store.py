@@ -249,7 +249,12 @@ class RunStore:
 
     def replay_latest_step(self, run_id: str) -> int | None:
         with self._lock:
-            row = self._db.execute("SELECT MAX(step) m FROM replay_steps WHERE run_id=?", (run_id,)).fetchone()
+            # a step with both its row and its pictures (the two are written one after the other)
+            row = self._db.execute(
+                f"SELECT MAX(r.step) m FROM replay_steps r JOIN {self.step_schema.table} s "
+                "ON s.run_id=r.run_id AND s.step=r.step WHERE r.run_id=?",
+                (run_id,),
+            ).fetchone()
         return None if row is None or row["m"] is None else int(row["m"])
 
     def replay_map_steps(self, run_id: str) -> list[int]:

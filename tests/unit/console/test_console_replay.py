@@ -142,3 +142,37 @@ def test_latest_step_for_the_live_view(finished) -> None:
     _, client, run_id = finished
     latest = client.get(f"/api/runs/{run_id}/replay/latest").json()
     assert latest["step"] == 25 and latest["frame_url"].endswith("/replay/25/frame.jpg")
+
+
+def test_a_step_is_announced_only_once_its_pictures_can_be_loaded(tmp_path: Path) -> None:
+    """The live view asks for the latest step when it hears of one: at that moment the step's
+    row and pictures are both stored (the step event used to come first, a 404 in the browser)."""
+    console = Console(
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
+        {"scripted": ScriptedProvider(stop_after=8)},
+    )
+    seen: list[tuple[int, int | None]] = []
+    publish = console.hub.publish
+
+    def spy(kind, run_id, data):
+        if kind == "step":
+            seen.append((int(data["step"]), console.store.replay_latest_step(run_id)))
+        return publish(kind, run_id, data)
+
+    console.hub.publish = spy  # type: ignore[method-assign]
+    client = TestClient(create_app(console))
+    with client:
+        run = client.post(
+            "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
+        )
+        run_id = run.json()["id"]
+        poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "finished")
+    console.close()
+    assert [s for s, _ in seen] == list(range(9))
+    assert all(latest == step for step, latest in seen), seen
+
+
+def test_the_latest_step_needs_both_its_row_and_its_pictures(finished) -> None:
+    console, _, run_id = finished
+    console.store.add_replay_step(run_id, 26, b"\xff\xd8", "{}")  # pictures of a step whose row is not written yet
+    assert console.store.replay_latest_step(run_id) == 25
