@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agent.projection import lift_depth_image
+from agent.projection import camera_rays_base, lift_depth_image
 from agent.types import ROBOT_HEIGHT_M, ROBOT_RADIUS_M, MapSnapshot, Observation, Pose2D
 
 log = logging.getLogger(__name__)
@@ -52,9 +52,21 @@ class MappingConfig:
     # a reading that differs from the median of its 3x3 neighbourhood by more than this share is
     # dropped (a stereo camera's flying pixels between two surfaces); 0: off
     depth_consistency: float = 0.05
+    # obstacle evidence over frames: a frame that hits a cell adds one (up to the cap), a frame
+    # that sees through it (the cell lies at least ``clear_margin_m`` short of its column's first
+    # obstacle, within ``clear_max_range_m`` of the camera, and far enough that the column's
+    # lowest ray passes below ``obstacle_min_height_m`` there) takes one away; the cell stays an
+    # obstacle until its evidence is spent. One hit blocks at once, as before; a cell hit in many
+    # frames (a wall) needs as many clear views (up to the cap). 0: off (an obstacle is for ever)
+    obstacle_evidence_cap: int = 0
+    clear_margin_m: float = 0.15
+    clear_max_range_m: float = 3.0
     free_fan: bool = True
     robot_radius_m: float = ROBOT_RADIUS_M
     collision_length_m: float = 0.10  # depth of the collision mark in front of the robot
+
+
+LAYER_DTYPES: dict[str, type] = {"obstacle_evidence": np.int8}  # every other layer is bool
 
 
 @dataclass(slots=True, eq=False)
@@ -71,10 +83,13 @@ class MapLayers:
     # there; a later detection still counts (the rejection only said "not confirmed yet")
     potential_blacklist: np.ndarray
     frontier_blacklist: np.ndarray  # frontiers given up (reached, unreachable, stalled); may be forgiven
+    # int8: frames of obstacle evidence left (``MappingConfig.obstacle_evidence_cap``); the one
+    # layer that is not bool
+    obstacle_evidence: np.ndarray
 
     @staticmethod
     def empty(shape: tuple[int, int]) -> MapLayers:
-        return MapLayers(*(np.zeros(shape, bool) for _ in dataclasses.fields(MapLayers)))
+        return MapLayers(*(np.zeros(shape, LAYER_DTYPES.get(f.name, bool)) for f in dataclasses.fields(MapLayers)))
 
     def names(self) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(self))
@@ -204,29 +219,56 @@ class GridMap:
         is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
         h, w = self.shape
         seen = inside.copy()
+        see_through = None  # (rows, cols, mask): the cells this frame saw through
         if cfg.free_fan and len(xy):
             # Floor seen *beyond* the first obstacle of its column (over a bed, between chair
             # legs) comes in sparse rows at range; marked explored it would riddle the map with
             # one-cell frontiers. Like a 2D laser scan, each column counts up to its first hit.
-            r_end = self._fill_fan(obs, cloud.uv_px[:, 0], cloud.xy_base, is_obstacle)
+            r_end, see_through = self._fill_fan(obs, cloud.uv_px, cloud.xy_base, is_obstacle)
             col = cloud.uv_px[:, 0] // cfg.depth_stride_px
             rng = np.hypot(cloud.xy_base[:, 0], cloud.xy_base[:, 1])
             seen &= is_obstacle | (rng <= r_end[col] + self.resolution_m)
         flat = ij[seen, 0] * w + ij[seen, 1]
         self.layers.explored.reshape(-1)[flat] = True
         obst_flat = ij[inside & is_obstacle, 0] * w + ij[inside & is_obstacle, 1]
+        hit = np.zeros(0, np.int64)
         if len(obst_flat):
-            counts = np.bincount(obst_flat, minlength=h * w)
-            self.layers.obstacle.reshape(-1)[counts >= cfg.obstacle_min_points] = True
+            cells, counts = np.unique(obst_flat, return_counts=True)
+            hit = cells[counts >= cfg.obstacle_min_points]
+            self.layers.obstacle.reshape(-1)[hit] = True
+        if cfg.obstacle_evidence_cap > 0:
+            self._weigh_evidence(hit, see_through)
         return MapUpdate(len(xy), int(np.count_nonzero(is_obstacle)), n_beyond, n_outside, grew)
 
-    def _fill_fan(self, obs: Observation, u_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray) -> np.ndarray:
+    def _weigh_evidence(self, hit: np.ndarray, see_through: tuple[slice, slice, np.ndarray] | None) -> None:
+        """Obstacle evidence over frames (``MappingConfig.obstacle_evidence_cap``): ``hit`` (flat
+        indices) gain one frame, the cells seen through (and not hit) lose one; an obstacle whose
+        evidence is spent is cleared."""
+        ev = self.layers.obstacle_evidence
+        flat = ev.reshape(-1)
+        flat[hit] = np.minimum(flat[hit].astype(np.int16) + 1, self.config.obstacle_evidence_cap)
+        if see_through is None:
+            return
+        rows, cols, through = see_through
+        win = ev[rows, cols]
+        was_hit = np.zeros(ev.shape, bool)
+        was_hit.reshape(-1)[hit] = True
+        spend = through & ~was_hit[rows, cols] & (win > 0)
+        win[spend] -= 1
+        self.layers.obstacle[rows, cols][spend & (win == 0)] = False
+
+    def _fill_fan(
+        self, obs: Observation, uv_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray
+    ) -> tuple[np.ndarray, tuple[slice, slice, np.ndarray] | None]:
         """Mark explored the polygon swept by each column's line of sight (see module docstring).
 
         Returns r_end: (n_cols,) float32 horizontal range of each column's first obstacle, or of
-        its farthest point when it has none (inf for a column without points)."""
+        its farthest point when it has none (inf for a column without points); and, with obstacle
+        evidence on, the cells seen through (rows, cols and a mask of that window): the fan from
+        where each column's lowest valid ray passes below the obstacle height to ``clear_margin_m``
+        short of its end (at most ``clear_max_range_m``)."""
         stride = self.config.depth_stride_px
-        col = (u_px // stride).astype(np.int64)
+        col = (uv_px[:, 0] // stride).astype(np.int64)
         n_cols = int(col.max()) + 1
         rng = np.hypot(xy_base[:, 0], xy_base[:, 1])
         r_obs = np.full(n_cols, np.inf, np.float32)
@@ -237,7 +279,7 @@ class GridMap:
         keep = np.isfinite(r_end) & (r_end > 0)
         r_end = np.where(keep, r_end, np.inf).astype(np.float32)
         if np.count_nonzero(keep) < 2:
-            return r_end
+            return r_end, None
         cols = np.nonzero(keep)[0]
         u = cols * stride
         intr = obs.intrinsics
@@ -247,21 +289,49 @@ class GridMap:
         pts = np.stack([obs.pose.x_m + r * np.cos(bearing), obs.pose.y_m + r * np.sin(bearing)], axis=1)
         pts = np.vstack([[obs.pose.x_m, obs.pose.y_m], pts])
         self._fill_polygon(pts, self.layers.explored)
-        return r_end
+        cfg = self.config
+        if cfg.obstacle_evidence_cap <= 0:
+            return r_end, None
+        # Seen through: between where the column's lowest valid ray passes below the obstacle
+        # height (nearer, an obstacle can stand unseen under it: the field of view's lower edge,
+        # or depth dropped out) and a margin short of its first obstacle (or clear_max_range_m).
+        v_low = np.full(n_cols, -1, np.int64)
+        np.maximum.at(v_low, col, uv_px[:, 1].astype(np.int64))
+        fwd, left, up = camera_rays_base(u, v_low[cols], intr, obs.camera_tilt_rad)
+        drop = obs.camera_height_m - cfg.obstacle_min_height_m
+        with np.errstate(divide="ignore"):
+            r_lo = np.where(up < 0, drop * np.hypot(fwd, left) / np.maximum(-up, 1e-9), np.inf)
+        r_hi = np.minimum(r - cfg.clear_margin_m, cfg.clear_max_range_m)
+        sees = r_hi > r_lo
+        if np.count_nonzero(sees) < 2:
+            return r_end, None
+        r_lo, r_hi, b = r_lo[sees], r_hi[sees], bearing[sees]
+        ring = np.concatenate([r_lo, r_hi[::-1]])
+        bb = np.concatenate([b, b[::-1]])
+        pts = np.stack([obs.pose.x_m + ring * np.cos(bb), obs.pose.y_m + ring * np.sin(bb)], axis=1)
+        return r_end, self._polygon_mask(pts)
 
-    def _fill_polygon(self, xy_m: np.ndarray, layer: np.ndarray) -> None:
-        """Rasterise a run-frame polygon (N, 2) into ``layer`` (clipped to the grid)."""
+    def _polygon_mask(self, xy_m: np.ndarray) -> tuple[slice, slice, np.ndarray] | None:
+        """A run-frame polygon (N, 2) rasterised: the grid window (rows, cols) around it and the
+        cells inside in that window (clipped to the grid; None when it misses the grid)."""
         shift = 3  # sub-cell vertex precision for cv2.fillPoly
         origin = np.asarray(self.origin_xy_m)
         pix = (xy_m - origin) / self.resolution_m - 0.5  # cell centres at integer coordinates
         lo = np.maximum(np.floor(pix.min(axis=0)).astype(int) - 1, 0)
         hi = np.minimum(np.ceil(pix.max(axis=0)).astype(int) + 2, np.asarray(self.shape[::-1]))
         if np.any(hi <= lo):
-            return
+            return None
         buf = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
         poly = np.round((pix - lo) * (1 << shift)).astype(np.int32)
         cv2.fillPoly(buf, [poly.reshape(-1, 1, 2)], 1, lineType=cv2.LINE_8, shift=shift)
-        layer[lo[1] : hi[1], lo[0] : hi[0]] |= buf.astype(bool)
+        return slice(lo[1], hi[1]), slice(lo[0], hi[0]), buf.astype(bool)
+
+    def _fill_polygon(self, xy_m: np.ndarray, layer: np.ndarray) -> None:
+        """Rasterise a run-frame polygon (N, 2) into ``layer`` (clipped to the grid)."""
+        mask = self._polygon_mask(xy_m)
+        if mask is not None:
+            rows, cols, inside = mask
+            layer[rows, cols] |= inside
 
     def mark_visited(self, xy_from: tuple[float, float], xy_to: tuple[float, float]) -> None:
         """Cells on the segment the robot centre travelled. The robot's own footprint at
@@ -288,6 +358,7 @@ class GridMap:
         cells = cells[self.in_bounds(cells)]
         for layer in (self.layers.collision, self.layers.obstacle):
             layer[cells[:, 0], cells[:, 1]] = False
+        self.layers.obstacle_evidence[cells[:, 0], cells[:, 1]] = 0
         self.layers.explored[cells[:, 0], cells[:, 1]] = True
 
     def mark_collision(self, pose: Pose2D) -> None:

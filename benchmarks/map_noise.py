@@ -2,7 +2,9 @@
 
 Replays the true poses of recorded episodes (an ``imgnav eval`` output), renders each frame,
 and builds the agent's top-down map from exact depth and from the realism profile's depth,
-with several mapping settings. The pose is exact here (the depth alone is measured). Prints per
+with several mapping settings. The pose is exact (the depth alone is measured) unless
+``--believed``: then the noisy maps are placed at the poses the agent believed (the records of a
+run under the profile hold them), as the agent's own map was. Prints per
 setting: phantom obstacle cells (obstacles in open floor, well clear of every real obstacle, as
 ``sim.evaluation.modiin`` counts them), and the share of the exact-depth map's obstacle cells
 the setting still finds (within one cell).
@@ -38,6 +40,17 @@ SETTINGS: dict[str, MappingConfig] = {
     "min 3 points": MappingConfig(obstacle_min_points=3, depth_consistency=0.0),
     "consistency 5%": MappingConfig(obstacle_min_points=1, depth_consistency=0.05),
     "consistency + min 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05),
+    "+ evidence cap 1": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=1),
+    "+ evidence cap 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3),
+    "+ evidence cap 3, to 5 m": MappingConfig(
+        obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3, clear_max_range_m=5.0
+    ),
+    "+ evidence cap 10": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=10),
+}
+# settings also given exact depth at the true pose: what they cost where nothing is wrong
+EXACT_SETTINGS: dict[str, MappingConfig] = {
+    "exact: consistency + min 3": SETTINGS["consistency + min 3"],
+    "exact: + evidence cap 3": SETTINGS["+ evidence cap 3"],
 }
 
 
@@ -78,12 +91,17 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=3, help="use every Nth pose of each trajectory")
     ap.add_argument("--max-frames", type=int, default=120)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--believed",
+        action="store_true",
+        help="place the noisy maps at the records' believed poses (poses_estimate_world)",
+    )
     args = ap.parse_args()
     es = load_episode_set(args.episodes)
     by_id = {e.episode_id: e for e in es.episodes}
     model = PROFILES["stretch"].depth
     assert model is not None
-    totals = {name: [0, []] for name in SETTINGS}  # ghosts, found shares
+    totals = {name: [0, []] for name in [*SETTINGS, *EXACT_SETTINGS]}  # ghosts, found shares
     for rec in read_records(Path(args.eval)):
         ep = by_id.get(rec["episode_id"])
         if ep is None:
@@ -91,26 +109,29 @@ def main() -> int:
         rng = np.random.default_rng([args.seed, ep.scene_seed])
         world = SimWorld.from_seed(ep.scene_seed)
         start = ep.start_pose_world
-        poses = [Pose2D(*p) for p in rec["trajectory"]["poses_world"]][:: args.every][: args.max_frames]
+        traj = rec["trajectory"]
+        believed_key = "poses_estimate_world" if args.believed else "poses_world"
+        if not traj.get(believed_key):
+            print(f"{ep.episode_id}: no {believed_key} in the record (run it under the profile)", file=sys.stderr)
+            return 2
+        poses = [Pose2D(*p) for p in traj["poses_world"]][:: args.every][: args.max_frames]
+        believed = [Pose2D(*p) for p in traj[believed_key]][:: args.every][: args.max_frames]
         exact = GridMap(UNFILTERED)
         noisy = {name: GridMap(cfg) for name, cfg in SETTINGS.items()}
-        for p in poses:
+        clean = {name: GridMap(cfg) for name, cfg in EXACT_SETTINGS.items()}
+        for p, b in zip(poses, believed, strict=True):
             r = world.render(p, SIM_CAMERA)
-            rel = p.relative_to(start)
             kw = dict(
-                rgb=r.rgb,
-                pose=rel,
-                intrinsics=SIM_CAMERA.intrinsics,
-                goal_image=r.rgb,
-                camera_height_m=SIM_CAMERA.height_m,
+                rgb=r.rgb, intrinsics=SIM_CAMERA.intrinsics, goal_image=r.rgb, camera_height_m=SIM_CAMERA.height_m
             )
-            exact.update(Observation(depth_m=r.depth_m, **kw))
+            for g in (exact, *clean.values()):
+                g.update(Observation(depth_m=r.depth_m, pose=p.relative_to(start), **kw))
             d = noisy_depth(r.depth_m, r.rgb, SIM_CAMERA.intrinsics.fx, model, rng)
             for g in noisy.values():
-                g.update(Observation(depth_m=d, **kw))
+                g.update(Observation(depth_m=d, pose=b.relative_to(start), **kw))
         ref = _cells_world(exact, start)
         row = [f"{ep.episode_id}: exact ghosts {_ghosts(ref, world)}"]
-        for name, g in noisy.items():
+        for name, g in (noisy | clean).items():
             xy = _cells_world(g, start)
             ghosts, found = _ghosts(xy, world), _found(ref, xy, exact.resolution_m)
             totals[name][0] += ghosts

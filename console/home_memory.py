@@ -189,7 +189,7 @@ def memory_from_bytes(
 ) -> tuple[HomeMemory, Pose2D | None]:
     """A memory and its anchor read back; ``MemoryFileError`` when the bytes are not one written
     by ``memory_bytes`` of this format, for this ``mapping`` config and ``matcher``."""
-    from agent.mapping import GridMap, MapLayers
+    from agent.mapping import LAYER_DTYPES, GridMap, MapLayers
     from agent.memory import GoalSummary, HomeMemory, Keyframe
 
     try:
@@ -215,8 +215,8 @@ def memory_from_bytes(
             grid = GridMap(mapping)
             layers = {n: arrays[grid_meta["layers"][n]] for n in grid.layers.names()}
             shapes = {a.shape for a in layers.values()}
-            if len(shapes) != 1 or any(a.dtype != bool or a.ndim != 2 for a in layers.values()):
-                raise MemoryFileError("the map's layers are not (H, W) bool arrays of one shape")
+            if len(shapes) != 1 or any(a.dtype != LAYER_DTYPES.get(n, bool) or a.ndim != 2 for n, a in layers.items()):
+                raise MemoryFileError("the map's layers are not (H, W) arrays of one shape and their types")
             grid.layers = MapLayers(**layers)
             grid.origin_ij = (int(grid_meta["origin_ij"][0]), int(grid_meta["origin_ij"][1]))
             memory.grid = grid

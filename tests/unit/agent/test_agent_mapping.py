@@ -139,3 +139,58 @@ def test_flying_pixels_are_filtered_before_they_reach_the_map():
     for g in exact:
         g.update(obs)
     assert np.array_equal(exact[0].layers.obstacle, exact[1].layers.obstacle)
+
+
+EVIDENCE = MappingConfig(depth_stride_px=1, obstacle_evidence_cap=3)
+PHANTOM = (2.5, -0.1, 2.7, 0.1, 0.5)  # a box 2.5 m ahead: in view of a level camera at 1.31 m
+
+
+def blocked(grid, box) -> bool:
+    """Any obstacle cell on the box's footprint (its front face may fall in the cell before)."""
+    lo = grid.xy_to_ij(np.array([[box[0] - 0.05, box[1]]]))[0]
+    hi = grid.xy_to_ij(np.array([[box[2], box[3]]]))[0]
+    return bool(grid.layers.obstacle[lo[0] : hi[0] + 1, lo[1] : hi[1] + 1].any())
+
+
+def test_an_obstacle_seen_once_is_cleared_when_a_later_frame_sees_the_floor_through_it():
+    for cap, cleared in ((3, True), (0, False)):
+        grid = GridMap(dataclasses.replace(EVIDENCE, obstacle_evidence_cap=cap))
+        grid.update(observation(ROOM + [PHANTOM], Pose2D()))
+        assert blocked(grid, PHANTOM)
+        grid.update(observation(ROOM, Pose2D()))  # the box is gone: the floor is seen through it
+        assert blocked(grid, PHANTOM) != cleared, cap
+        assert grid.layers.obstacle[cell(grid, 5.02, 0.0)]  # the wall behind stays
+
+
+def test_an_obstacle_seen_in_many_frames_needs_as_many_clear_views_up_to_the_cap():
+    for seen, needed in ((2, 2), (5, 3)):
+        grid = GridMap(EVIDENCE)
+        for _ in range(seen):
+            grid.update(observation(ROOM + [PHANTOM], Pose2D()))
+        for k in range(needed):
+            assert blocked(grid, PHANTOM), (seen, k)
+            grid.update(observation(ROOM, Pose2D()))
+        assert not blocked(grid, PHANTOM), seen
+
+
+def test_an_obstacle_under_the_field_of_view_is_not_cleared():
+    """A low box 1 m ahead is below a level camera's view (the floor shows from about 1.9 m):
+    frames from there pass over it, they do not see through it."""
+    low = (1.0, -0.1, 1.2, 0.1, 0.3)
+    grid = GridMap(EVIDENCE)
+    grid.update(observation(ROOM + [low, PHANTOM], Pose2D(-0.9, 0.0, 0.0)))  # both seen from 1.9 m back
+    assert blocked(grid, low) and blocked(grid, PHANTOM)
+    for _ in range(3):
+        grid.update(observation(ROOM, Pose2D(0.0, 0.0, 0.0)))  # nearer: the box is under the view
+    assert blocked(grid, low)
+    assert not blocked(grid, PHANTOM)  # while the one in view is seen through
+
+
+def test_an_obstacle_is_not_cleared_beyond_the_clearing_range_or_at_the_first_hit():
+    far_box = (3.6, -0.1, 3.8, 0.1, 0.5)
+    grid = GridMap(EVIDENCE)  # clear_max_range_m 3.0
+    grid.update(observation(ROOM + [far_box], Pose2D()))
+    grid.update(observation(ROOM, Pose2D()))
+    assert blocked(grid, far_box)  # 3.6 m away: depth too coarse to clear
+    grid.update(observation(ROOM, Pose2D(1.0, 0.0, 0.0)))  # 2.6 m away
+    assert not blocked(grid, far_box)
