@@ -92,6 +92,13 @@ class Console:
         self.manager.stop(run_id, "stopped from the 3D viewer")
         return f"Stopping run {run_id}..."
 
+    def stop_for_shutdown(self) -> None:
+        """The server has begun to shut down: stop the active run (and so the robot) while the
+        pages still hear of it, then end their status streams, which the server would otherwise
+        wait for before it shuts the app down (``console.server.ConsoleServer``)."""
+        self.manager.shutdown()
+        self.hub.close()
+
     def close(self) -> None:
         """Stop the robot first (the active run's worker closes its backend), then the rest."""
         if self._closed:

@@ -11,9 +11,14 @@ environment variable IMGNAV_TOKEN) sets it. Ctrl-C stops the active run first.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
 import os
+import socket
+from collections.abc import Callable
 from pathlib import Path
+
+import uvicorn
 
 from console.context import Console, ConsoleConfig
 from console.datalock import DataDirLock, DataDirLocked
@@ -73,12 +78,36 @@ def console_urls(host: str, port: int, token: str | None) -> list[str]:
     return [f"http://{h}:{port}/{query}" for h in hosts]
 
 
+class ConsoleServer(uvicorn.Server):
+    """uvicorn's server, which stops the console's run and ends its status streams as soon as it
+    starts to shut down.
+
+    uvicorn closes idle connections at once, but waits for open responses to end before it runs
+    the app's lifespan shutdown (``Console.close``), and a status stream (every open console or
+    phone page holds one) never ends by itself: with a page open, Ctrl-C left the run, and the
+    robot, going until ``timeout_graceful_shutdown`` had passed (and a server without that
+    timeout never stopped). Here the server stops accepting connections, then ``stop``
+    (``Console.stop_for_shutdown``: the run, then the streams) runs on a worker thread, so that
+    the loop still sends the pages the run's last events, and then uvicorn shuts down."""
+
+    def __init__(self, config: uvicorn.Config, stop: Callable[[], None]) -> None:
+        super().__init__(config)
+        self._stop = stop
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        for server in self.servers:
+            server.close()  # no new connections (uvicorn's own shutdown begins so too)
+        try:
+            await asyncio.to_thread(self._stop)
+        except Exception:  # uvicorn's own shutdown must still run
+            logger.exception("stopping the console for the shutdown failed")
+        await super().shutdown(sockets)
+
+
 def run(args: argparse.Namespace) -> int:
     from console.agents import passive_openmp_wait
 
     passive_openmp_wait()  # before anything imports torch
-
-    import uvicorn
 
     from console.agents import warm_up_async
     from console.api import create_app
@@ -103,9 +132,17 @@ def run(args: argparse.Namespace) -> int:
         logger.error("%s", exc)
         return 1
 
+    built: list[Console] = []  # the console, once the app's lifespan has built it
+
     def build() -> Console:
         providers = build_providers(args, Path(args.data_dir).resolve())
-        return Console(config, providers, lock=lock)
+        console = Console(config, providers, lock=lock)
+        built.append(console)
+        return console
+
+    def stop_for_shutdown() -> None:
+        for console in built:
+            console.stop_for_shutdown()
 
     def ready(console: Console) -> None:
         for provider in console.providers.values():
@@ -124,8 +161,14 @@ def run(args: argparse.Namespace) -> int:
             logger.warning("runs interrupted by the last shutdown: %s", ", ".join(console.interrupted_on_start))
 
     app = create_app(build=build, config=config, on_ready=ready)
+    server = ConsoleServer(
+        uvicorn.Config(app, host=args.host, port=args.port, log_level="info", timeout_graceful_shutdown=5),
+        stop_for_shutdown,
+    )
     try:
-        uvicorn.run(app, host=args.host, port=args.port, log_level="info", timeout_graceful_shutdown=5)
+        server.run()
+    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled once it has shut down
+        pass
     except SystemExit as exc:  # uvicorn exits when start-up fails (a port in use, ...)
         return int(exc.code) if isinstance(exc.code, int) else 1
     finally:

@@ -29,13 +29,19 @@ def sim_console(data_dir: Path, viewer: bool = False, realism: Any = None, **con
 
 
 class LiveServer:
-    """The real app on a real uvicorn server in a thread (browser tests, SSE)."""
+    """The real app on the console's own uvicorn server (``imgnav console``'s) in a thread
+    (browser tests, SSE)."""
 
     def __init__(self, console: Console) -> None:
         import uvicorn
 
+        from console.server import ConsoleServer
+
         self.console = console
-        self.server = uvicorn.Server(uvicorn.Config(create_app(console), host="127.0.0.1", port=0, log_level="warning"))
+        # No graceful-shutdown timeout (the product has 5 s): a response that outlives the
+        # shutdown (a page's status stream) is a failure of ``close`` here, not a silent wait.
+        config = uvicorn.Config(create_app(console), host="127.0.0.1", port=0, log_level="warning")
+        self.server = ConsoleServer(config, console.stop_for_shutdown)
         self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
         self.thread.start()
         poll(lambda: self.server.started, bool, 30, "uvicorn start")
@@ -43,6 +49,9 @@ class LiveServer:
         self.url = f"http://127.0.0.1:{sock.getsockname()[1]}"
 
     def close(self) -> None:
+        """Stop the server as Ctrl-C does (pages may still be open), then the console."""
         self.server.should_exit = True
         self.thread.join(30)
+        stopped = not self.thread.is_alive()
         self.console.close()
+        assert stopped, "the console's server did not shut down within 30 s (an open response?)"
