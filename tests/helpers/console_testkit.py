@@ -48,11 +48,40 @@ def encode(rgb: np.ndarray, fmt: str, **kw: Any) -> bytes:
     return buf.getvalue()
 
 
+class Hold:
+    """Holds a run at a step: the moves from step ``at`` on wait until the test moves the hold on
+    (``move_to``) or releases it, so that it can look at the run there for as long as it needs
+    (``timeout_s`` is a deadline: a failed test cannot leave a run held for ever)."""
+
+    def __init__(self, at: int, timeout_s: float = 300.0) -> None:
+        self._changed = threading.Condition()
+        self.at: int | None = at
+        self.timeout_s = timeout_s
+
+    def move_to(self, at: int | None) -> None:
+        """Hold the moves from step ``at`` on instead (None: hold none)."""
+        with self._changed:
+            self.at = at
+            self._changed.notify_all()
+
+    def release(self) -> None:
+        self.move_to(None)
+
+    def wait(self, step: int) -> None:
+        with self._changed:
+            self._changed.wait_for(lambda: self.at is None or step < self.at, self.timeout_s)
+
+
 class ScriptedBackend:
     """Turns left every step; poses advance; ``fail_at`` raises a BackendError."""
 
     def __init__(
-        self, goal: np.ndarray, fail_at: int | None = None, gate: threading.Event | None = None, step_s: float = 0.0
+        self,
+        goal: np.ndarray,
+        fail_at: int | None = None,
+        gate: threading.Event | None = None,
+        step_s: float = 0.0,
+        hold: Hold | None = None,
     ) -> None:
         self.goal = goal
         self.step_s = step_s  # how long a move takes (a robot is not instantaneous; pages need time to look)
@@ -62,6 +91,7 @@ class ScriptedBackend:
         self.closed = False
         self.fail_at = fail_at
         self.gate = gate
+        self.hold = hold
 
     def _obs(self) -> Observation:
         h, w = SIM_INTRINSICS.height_px, SIM_INTRINSICS.width_px
@@ -79,6 +109,8 @@ class ScriptedBackend:
     def apply(self, action: Action) -> None:
         if self.gate is not None:
             self.gate.wait(10.0)
+        if self.hold is not None:
+            self.hold.wait(self.step)
         if self.step_s:
             time.sleep(self.step_s)
         if self.fail_at is not None and self.step == self.fail_at:
@@ -115,11 +147,14 @@ class ScriptedProvider:
     name = "scripted"
     label = "Scripted test backend"
 
-    def __init__(self, stop_after: int = 5, fail_at: int | None = None, step_s: float = 0.0) -> None:
+    def __init__(
+        self, stop_after: int = 5, fail_at: int | None = None, step_s: float = 0.0, hold: Hold | None = None
+    ) -> None:
         self.stop_after = stop_after
         self.step_s = step_s
         self.fail_at = fail_at
         self.gate: threading.Event | None = None
+        self.hold = hold  # shared by the runs: once released, it holds none
         self.sessions: list[ScriptedSession] = []
 
     def available(self) -> tuple[bool, str]:
@@ -137,7 +172,7 @@ class ScriptedProvider:
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> ScriptedSession:
         session = ScriptedSession(
-            ScriptedBackend(goal_rgb, self.fail_at, self.gate, self.step_s), ScriptedAgent(self.stop_after)
+            ScriptedBackend(goal_rgb, self.fail_at, self.gate, self.step_s, self.hold), ScriptedAgent(self.stop_after)
         )
         self.sessions.append(session)
         return session

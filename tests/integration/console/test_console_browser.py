@@ -7,7 +7,6 @@ taken from these."""
 from __future__ import annotations
 
 import hashlib
-import threading
 from pathlib import Path
 
 import pytest
@@ -179,15 +178,14 @@ def test_console_live_run_in_the_viewer_and_stop(browser, live_console: LiveServ
 @pytest.fixture
 def scripted_console(tmp_path: Path):
     """A console whose robot is scripted: a goal candidate appears at step 4 and is rejected at
-    step 7, every run, which stops by itself after 13 steps; each move takes 0.3 s, and the
-    provider's gate can hold the run mid-way (the real agent cannot promise a detection)."""
+    step 7, every run, which stops by itself after 13 steps; the run is held before its fifth
+    move, with its candidate, until the test moves the hold on (``provider.hold``; the real agent
+    cannot promise a detection)."""
     from console.context import Console, ConsoleConfig
     from console.viewer import ViewerConfig
-    from tests.helpers.console_testkit import ScriptedProvider
+    from tests.helpers.console_testkit import Hold, ScriptedProvider
 
-    provider = ScriptedProvider(stop_after=12, step_s=0.3)
-    provider.gate = threading.Event()
-    provider.gate.set()
+    provider = ScriptedProvider(stop_after=12, hold=Hold(at=4))
     console = Console(ConsoleConfig(data_dir=tmp_path / "data", viewer=ViewerConfig(port=0)), {"scripted": provider})
     server = LiveServer(console)
     yield server, provider
@@ -305,9 +303,13 @@ def test_scripted_run_on_phone_and_console(browser, scripted_console, tmp_path: 
         phone.click("#start")
         poll(lambda: console.manager.active_run_id, lambda r: r is not None, 30, "active run")
         run_id = console.manager.active_run_id
-        # hold the run mid-way, with its candidate (from step 4): each move then waits up to 10 s
-        poll(lambda: console.store.get_run(run_id)["n_steps"], lambda n: n >= 4, 60, "a candidate")
-        provider.gate.clear()
+        # the run is held mid-way, with its candidate (from step 4), until released below
+        poll(lambda: console.store.get_run(run_id)["n_steps"], lambda n: n == 4, 60, "a candidate")
+        # the console page (which did not start the run) shows its live state from the run's next
+        # step on: one more move once the page follows the run
+        page.wait_for_function("(id) => document.getElementById('live-id').textContent === id", arg=run_id)
+        provider.hold.move_to(5)
+        poll(lambda: console.store.get_run(run_id)["n_steps"], lambda n: n == 5, 60, "the next step")
         phone.wait_for_function("document.getElementById('run-mode').textContent !== '-'", timeout=60_000)
         phone.wait_for_selector("#live-map:not([hidden])", timeout=60_000)
         _in_view(phone, "run-mode", "run-score", "run-candidates", "stop")
@@ -325,7 +327,7 @@ def test_scripted_run_on_phone_and_console(browser, scripted_console, tmp_path: 
         )
         page.locator("#candidates").scroll_into_view_if_needed()
         page.screenshot(path=str(ARTIFACTS / "console_candidates.png"))
-        provider.gate.set()
+        provider.hold.release()
         poll(lambda: console.store.get_run(run_id)["status"], lambda s: s == "finished", 120, "end")
         n = console.store.get_run(run_id)["n_steps"]
         assert n == 13
@@ -388,7 +390,7 @@ def test_scripted_run_on_phone_and_console(browser, scripted_console, tmp_path: 
         page.locator("#replay").scroll_into_view_if_needed()
         page.screenshot(path=str(ARTIFACTS / "console_replay.png"))
     finally:
-        provider.gate.set()
+        provider.hold.release()
         phone_ctx.close()
         desk.close()
 

@@ -29,22 +29,31 @@ def viewer() -> Iterator[tuple[Viewer, list[str]]]:
         v.close()
 
 
-def _open(browser, url: str):
+def _open(browser, url: str, contexts: list):
+    """A new browser (context) on the viewer; the page loads while the caller goes on."""
     p, b = browser
     context = b.new_context(viewport={"width": 1280, "height": 800})
+    contexts.append(context)
     page = context.new_page()
     page.goto(url)
+    return page
+
+
+def _ready(page) -> None:
     page.wait_for_selector(TOKEN_INPUT, timeout=60_000)
     page.wait_for_selector("button:has-text('Stop the run'):not([disabled])", timeout=60_000)
-    return context, page
 
 
 def test_token_box_is_per_client_masked_and_cleared(browser, viewer) -> None:
     v, stops = viewer
     url = f"http://127.0.0.1:{v.port}/"
-    ctx_a, a = _open(browser, url)
-    ctx_b, b = _open(browser, url)
+    contexts: list = []
     try:
+        # both viewers load side by side (each builds its scene, in software)
+        a = _open(browser, url, contexts)
+        b = _open(browser, url, contexts)
+        _ready(a)
+        _ready(b)
         poll(lambda: len(v.controls.by_client), lambda n: n == 2, 30, "two clients with their own controls")
         a.fill(TOKEN_INPUT, TOKEN)
         # the server has A's token in A's box only...
@@ -89,5 +98,5 @@ def test_token_box_is_per_client_masked_and_cleared(browser, viewer) -> None:
         # only A was told; B's note still says its own attempt failed
         assert b.locator("text=Stopping run abc").count() == 0
     finally:
-        ctx_a.close()
-        ctx_b.close()
+        for context in contexts:
+            context.close()
