@@ -57,8 +57,10 @@ class MappingConfig:
     # obstacle, within ``clear_max_range_m`` of the camera, and far enough that the column's
     # lowest ray passes below ``obstacle_min_height_m`` there) takes one away; the cell stays an
     # obstacle until its evidence is spent. One hit blocks at once, as before; a cell hit in many
-    # frames (a wall) needs as many clear views (up to the cap). 0: off (an obstacle is for ever)
-    obstacle_evidence_cap: int = 0
+    # frames (a wall) needs as many clear views (up to the cap). 0: off (an obstacle is for ever).
+    # Under the `stretch` profile it removed about 70% of the phantom cells the filters leave
+    # (docs/experiments/realism-evidence.md)
+    obstacle_evidence_cap: int = 3
     clear_margin_m: float = 0.15
     clear_max_range_m: float = 3.0
     free_fan: bool = True

@@ -34,12 +34,12 @@ from sim.realism import PROFILES, noisy_depth  # noqa: E402
 from sim.world import SimWorld  # noqa: E402
 
 # every setting written out (the defaults may move): the unfiltered map is the reference
-UNFILTERED = MappingConfig(obstacle_min_points=1, depth_consistency=0.0)
+UNFILTERED = MappingConfig(obstacle_min_points=1, depth_consistency=0.0, obstacle_evidence_cap=0)
 SETTINGS: dict[str, MappingConfig] = {
     "unfiltered (min 1 point)": UNFILTERED,
-    "min 3 points": MappingConfig(obstacle_min_points=3, depth_consistency=0.0),
-    "consistency 5%": MappingConfig(obstacle_min_points=1, depth_consistency=0.05),
-    "consistency + min 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05),
+    "min 3 points": MappingConfig(obstacle_min_points=3, depth_consistency=0.0, obstacle_evidence_cap=0),
+    "consistency 5%": MappingConfig(obstacle_min_points=1, depth_consistency=0.05, obstacle_evidence_cap=0),
+    "consistency + min 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=0),
     "+ evidence cap 1": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=1),
     "+ evidence cap 3": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3),
     "+ evidence cap 3, to 5 m": MappingConfig(

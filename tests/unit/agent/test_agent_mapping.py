@@ -141,7 +141,7 @@ def test_flying_pixels_are_filtered_before_they_reach_the_map():
     assert np.array_equal(exact[0].layers.obstacle, exact[1].layers.obstacle)
 
 
-EVIDENCE = MappingConfig(depth_stride_px=1, obstacle_evidence_cap=3)
+EVIDENCE = MappingConfig(depth_stride_px=1)  # obstacle evidence on (cap 3), the default
 PHANTOM = (2.5, -0.1, 2.7, 0.1, 0.5)  # a box 2.5 m ahead: in view of a level camera at 1.31 m
 
 
