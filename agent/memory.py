@@ -218,7 +218,8 @@ class GoalSummary:
     """One goal in this home: its steps, how it began (``first_mode``: the mode of its first step,
     ``look_around`` unless a candidate was there to head for) and ended, its candidates at the end,
     and what the memory gave it at its start (the keyframes it was scored against, the remembered
-    views that added goal points, their best score)."""
+    views that added goal points, their best score). ``run_id``: the console run that asked for
+    it (set by ``console.home_memory``; None elsewhere, e.g. in an evaluation)."""
 
     goal_index: int
     keyframes_at_start: int = 0
@@ -230,10 +231,12 @@ class GoalSummary:
     recalled_views: int = 0
     recall_best_score: float | None = None
     recall_ms: float = 0.0
+    run_id: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "goal_index": self.goal_index,
+            "run_id": self.run_id,
             "keyframes_at_start": self.keyframes_at_start,
             "steps": self.steps,
             "first_mode": self.first_mode,

@@ -21,6 +21,19 @@ the arrays are the archive's members (read with ``allow_pickle=False``) and ever
 one JSON member (``meta``) whose tree names its arrays. A file that cannot be read, or that was
 written for another format, mapping or matcher, is logged as an error, moved aside
 (``<home>.unreadable-<time>.npz``, never deleted) and the home starts with an empty memory.
+Format 2 gives each goal the id of the console run that asked for it (``GoalSummary.run_id``);
+a format 1 file (written before) is read with no run ids. A later format is refused like any
+other unreadable file.
+
+**The requests and their runs.** The agent begins a goal (``HomeMemory.begin_goal``, in its
+``reset``) on the run's worker thread and replaces its summary at every step there, so the
+console does not write the summary while the run goes on: the run that holds the memory
+(``HomeMemories.acquire(key, run_id)``) owns the goals begun from then on, shown with its id
+while it runs (``summary``) and stamped with it when it releases the memory, before the memory
+is saved. The console page's memory panel lists the known objects (``known_objects``: each
+request whose final candidates were not all rejected) with the goal photo of the run that asked
+for each, and starts a request for one again from that photo (``POST /api/runs`` with
+``goal_from_run``, refused unless the run is a request this home remembers: ``remembers``).
 """
 
 from __future__ import annotations
@@ -29,6 +42,7 @@ import dataclasses
 import io
 import json
 import logging
+import math
 import re
 import threading
 import time
@@ -39,14 +53,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from agent.types import CandidateInfo, Pose2D
+from console.artifacts import valid_run_id
 
 if TYPE_CHECKING:  # agent.memory imports torch: not before console.agents.passive_openmp_wait
     from agent.mapping import MappingConfig
-    from agent.memory import HomeMemory, MemoryConfig
+    from agent.memory import GoalSummary, HomeMemory, MemoryConfig
 
 logger = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_FORMATS = (1, 2)  # 1: the goals have no run ids
+MARK_MERGE_M = 0.5  # known objects closer than this are one mark on the map, numbered with each request
 HOME_KEY = re.compile(r"^(home|scene)-\d{1,9}$")
 
 
@@ -188,9 +205,10 @@ def memory_from_bytes(
     data: bytes, config: MemoryConfig, mapping: MappingConfig, matcher: str
 ) -> tuple[HomeMemory, Pose2D | None]:
     """A memory and its anchor read back; ``MemoryFileError`` when the bytes are not one written
-    by ``memory_bytes`` of this format, for this ``mapping`` config and ``matcher``."""
+    by ``memory_bytes`` in a format this version reads (``READABLE_FORMATS``), for this ``mapping``
+    config and ``matcher``."""
     from agent.mapping import LAYER_DTYPES, GridMap, MapLayers
-    from agent.memory import GoalSummary, HomeMemory, Keyframe
+    from agent.memory import HomeMemory, Keyframe
 
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as z:
@@ -200,9 +218,9 @@ def memory_from_bytes(
         raise
     except Exception as exc:  # zip, npy header, JSON: all say the same thing
         raise MemoryFileError(f"not a memory archive ({type(exc).__name__}: {exc})") from exc
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT_VERSION:
+    if not isinstance(meta, dict) or meta.get("format") not in READABLE_FORMATS:
         raise MemoryFileError(
-            f"format {meta.get('format') if isinstance(meta, dict) else None!r}, not {FORMAT_VERSION}"
+            f"format {meta.get('format') if isinstance(meta, dict) else None!r}, not one of {READABLE_FORMATS}"
         )
     try:
         memory = HomeMemory(config)
@@ -223,10 +241,7 @@ def memory_from_bytes(
         memory.goal_index = int(meta["goal_index"])
         memory.matcher = meta["matcher"]
         memory.last_pose = None if meta["last_pose"] is None else _unpose(meta["last_pose"])
-        memory.goals = [
-            GoalSummary(**{**g, "candidates": tuple(CandidateInfo(**c) for c in g["candidates"])})
-            for g in meta["goals"]
-        ]
+        memory.goals = [_goal(g) for g in meta["goals"]]
         keyframes = []
         for k in meta["keyframes"]:
             kp = np.asarray(arrays[k["keypoints_xy"]], np.float32)
@@ -256,6 +271,39 @@ def memory_from_bytes(
     return memory, anchor
 
 
+def _goal(g: dict[str, Any]) -> GoalSummary:
+    """A goal's summary as ``memory_bytes`` wrote it (``dataclasses.asdict``); its run id, when
+    there is one, must be a run id (it names the run's files in the console's URLs)."""
+    from agent.memory import GoalSummary
+
+    run_id = g.get("run_id")
+    if run_id is not None and not (isinstance(run_id, str) and valid_run_id(run_id)):
+        raise MemoryFileError(f"goal {g.get('goal_index')}: {str(run_id)[:40]!r} is not a run id")
+    return GoalSummary(**{**g, "candidates": tuple(CandidateInfo(**c) for c in g["candidates"])})
+
+
+def known_objects(goals: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The objects the memory knows, from its goals as ``HomeMemory.summary`` gives them: each
+    request (``goal_index + 1``) whose final candidates were not all rejected, with its run and
+    its best such candidate (state, position, best score) and how many there were."""
+    out = []
+    for g in goals:
+        kept = [c for c in g["candidates"] if c["state"] != "rejected"]
+        if kept:
+            best = max(kept, key=lambda c: c["best_score"])
+            out.append(
+                {
+                    "request": g["goal_index"] + 1,
+                    "run_id": g["run_id"],
+                    "state": best["state"],
+                    "xy_m": best["xy_m"],
+                    "best_score": best["best_score"],
+                    "candidates": len(kept),
+                }
+            )
+    return out
+
+
 # --- the memories of the homes ---------------------------------------------------------
 
 
@@ -268,6 +316,14 @@ class HomeSlot:
     anchor_world: Pose2D | None = None
     in_use: bool = False
     lock: threading.Lock = field(default_factory=threading.Lock)
+    run_id: str | None = None  # the console run using the memory (module docstring, "The requests")
+    run_goals_from: int = 0  # the goals it begins: those from this goal index on
+
+    def run_of(self, goal: GoalSummary) -> str | None:
+        """The run that asked for a goal: stamped, or the run using the memory now."""
+        if goal.run_id is None and self.in_use and goal.goal_index >= self.run_goals_from:
+            return self.run_id
+        return goal.run_id
 
     def origin_for(self, start_world: Pose2D) -> Pose2D:
         """The pose of a run's start in the memory's frame; an empty memory takes this start as
@@ -330,23 +386,30 @@ class HomeMemories:
                 self._slots[key] = slot
             return slot
 
-    def acquire(self, key: str) -> HomeSlot:
-        """The home's memory for a run (one run at a time uses it)."""
+    def acquire(self, key: str, run_id: str | None = None) -> HomeSlot:
+        """The home's memory for a run (one run at a time uses it); the goal it begins will be
+        noted as asked for by ``run_id`` (the console run; None: none)."""
         slot = self.slot(key)
         with self._lock:
             if slot.in_use:
                 raise MemoryInUse(f"the memory of {key} is in use by another run")
             slot.in_use = True
+            slot.run_id = run_id
+            slot.run_goals_from = slot.memory.goal_index + 1  # begin_goal takes the next index
         return slot
 
     def release(self, slot: HomeSlot, save: bool = True) -> None:
-        """The run has ended: save the memory (errors logged; the memory stays in this process)."""
+        """The run has ended (its worker no longer writes the memory): its goals are stamped with
+        its id and the memory is saved (errors logged; the memory stays in this process)."""
         try:
+            with slot.lock:
+                slot.memory.goals = [dataclasses.replace(g, run_id=slot.run_of(g)) for g in slot.memory.goals]
             if save:
                 self.save(slot)
         finally:
             with self._lock:
                 slot.in_use = False
+                slot.run_id = None
 
     def save(self, slot: HomeSlot) -> None:
         path = self.path(slot.key)
@@ -378,7 +441,8 @@ class HomeMemories:
         return had
 
     def summary(self, key: str) -> dict[str, Any]:
-        """What the home's memory holds, as plain JSON (``HomeMemory.summary`` plus the home)."""
+        """What the home's memory holds, as plain JSON: ``HomeMemory.summary`` (each goal with the
+        run that asked for it, ``HomeSlot.run_of``), the home, and its ``known_objects``."""
         slot = self.slot(key)
         for _ in range(5):  # the run's worker may change the memory while it is read
             try:
@@ -388,11 +452,25 @@ class HomeMemories:
                 time.sleep(0.01)
         else:
             s = slot.memory.summary()
-        return {"home": key, "in_use": slot.in_use, "saved": self.path(key).is_file(), **s}
+        goals = {g.goal_index: g for g in slot.memory.goals}  # read after: it holds every goal of ``s``
+        for out in s["goals"]:
+            out["run_id"] = slot.run_of(goals[out["goal_index"]])
+        return {
+            "home": key,
+            "in_use": slot.in_use,
+            "saved": self.path(key).is_file(),
+            **s,
+            "objects": known_objects(s["goals"]),
+        }
+
+    def remembers(self, key: str, run_id: str) -> bool:
+        """Whether the home's memory holds a request asked for by this console run."""
+        return any(g.run_id == run_id for g in self.slot(key).memory.goals)
 
     def map_png(self, key: str, size_px: int = 480) -> bytes:
-        """The remembered map with the known objects (final candidates of the goals) and the
-        last pose, as a PNG; an empty picture when nothing is remembered."""
+        """The remembered map with the known objects (final candidates of the goals, not rejected),
+        each numbered with its request, and the last pose, as a PNG; an empty picture when nothing
+        is remembered."""
         from PIL import Image
 
         from console.pictures import render_map
@@ -400,11 +478,20 @@ class HomeMemories:
         slot = self.slot(key)
         memory = slot.memory
         snapshot = memory.grid.snapshot() if memory.grid is not None else None
-        points = [c.xy_m for g in memory.goals for c in g.candidates if c.state != "rejected"]
+        marks: list[tuple[tuple[float, float], list[str]]] = []  # a place and the requests that found it
+        for g in memory.goals:
+            for c in g.candidates:
+                if c.state != "rejected":
+                    near = next((m for m in marks if math.dist(m[0], c.xy_m) < MARK_MERGE_M), None)
+                    if near is None:
+                        marks.append(((c.xy_m[0], c.xy_m[1]), [str(g.goal_index + 1)]))
+                    elif str(g.goal_index + 1) not in near[1]:
+                        near[1].append(str(g.goal_index + 1))
         rgb, _ = render_map(
             snapshot,
             pose=memory.last_pose,
-            extra_points_xy_m=np.asarray(points, np.float64).reshape(-1, 2),
+            extra_points_xy_m=np.asarray([xy for xy, _ in marks], np.float64).reshape(-1, 2),
+            extra_labels=[",".join(requests) for _, requests in marks],  # the request numbers, as the list says
             size_px=size_px,
         )
         buf = io.BytesIO()

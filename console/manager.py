@@ -31,7 +31,7 @@ import threading
 import time
 import uuid
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -111,9 +111,11 @@ class RunManager:
         upload: bytes,
         received_s: float,
         request_timings: Mapping[str, float] | None = None,
+        goal_from_run: str | None = None,
     ) -> str:
         """Create the run record and its worker thread; returns the run id. ``request_timings``:
         what the request spent before (``decode_s``, ``resolve_s``), kept in the run's timings.
+        ``goal_from_run``: the run whose goal photo this one was given (kept in its goal's record).
 
         Raises ``RunConflict`` when a run is active, RuntimeError after shutdown."""
         provider = self.providers[resolved.backend]
@@ -135,6 +137,8 @@ class RunManager:
                 "dhash": f"{goal.dhash:016x}",
                 "path": "goal.png",
             }
+            if goal_from_run is not None:
+                goal_info["from_run"] = goal_from_run
             self.store.create_run(
                 run_id,
                 backend=resolved.backend,
@@ -145,6 +149,7 @@ class RunManager:
             )
             timings["record_s"] = time.perf_counter() - t0  # the upload's file and the run's row
             stop = threading.Event()
+            resolved = replace(resolved, run_id=run_id)  # the home's memory notes it with its goal
             thread = threading.Thread(
                 target=self._work,
                 args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s, timings),

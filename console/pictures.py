@@ -9,6 +9,7 @@ viewer, the artifacts and the tests share them.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -105,10 +106,12 @@ def render_map(
     target_xy_m: tuple[float, float] | None = None,
     goal_points_xyz: np.ndarray | None = None,
     extra_points_xy_m: np.ndarray | None = None,
+    extra_labels: Sequence[str] | None = None,
     size_px: int = 480,
     margin_m: float = 0.75,
 ) -> tuple[np.ndarray, MapView]:
-    """A top-down picture (+x right, +y up) of the known part of the map with overlays."""
+    """A top-down picture (+x right, +y up) of the known part of the map with overlays.
+    ``extra_labels``: a short text beside each extra point (the memory's request numbers)."""
     traj = np.zeros((0, 2)) if trajectory_xy_m is None else np.asarray(trajectory_xy_m, np.float64).reshape(-1, 2)
     plan = np.zeros((0, 2)) if plan_xy_m is None else np.asarray(plan_xy_m, np.float64).reshape(-1, 2)
     goal_xy = (
@@ -151,8 +154,10 @@ def render_map(
     poly(plan, PLAN_RGB, thick)
     for u_px, v_px in np.round(view.to_px(goal_xy)).astype(np.int32):
         cv2.circle(canvas, (int(u_px), int(v_px)), max(2, thick + 1), GOAL_RGB, -1, cv2.LINE_AA)
-    for u_px, v_px in np.round(view.to_px(extra)).astype(np.int32):
+    for k, (u_px, v_px) in enumerate(np.round(view.to_px(extra)).astype(np.int32)):
         cv2.drawMarker(canvas, (int(u_px), int(v_px)), CANDIDATE_MARK_RGB, cv2.MARKER_TILTED_CROSS, 6 * thick, thick)
+        if extra_labels is not None and k < len(extra_labels):
+            _label(canvas, extra_labels[k], (int(u_px) + 4 * thick, int(v_px) - 3 * thick), thick)
     if len(target):
         u_px, v_px = np.round(view.to_px(target)[0]).astype(int)
         cv2.drawMarker(canvas, (int(u_px), int(v_px)), TARGET_RGB, cv2.MARKER_STAR, 8 * thick, thick, cv2.LINE_AA)
@@ -173,6 +178,17 @@ def render_map(
             tipLength=0.35,
         )
     return canvas, view
+
+
+def _label(canvas: np.ndarray, text: str, at_px: tuple[int, int], thick: int) -> None:
+    """``text`` with its lower left corner at ``at_px``, in the mark's orange on a dark outline
+    (legible on every layer colour), moved inside the picture when it would leave it."""
+    scale = 0.45 * thick
+    (w, h), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    u = min(max(at_px[0], 1), canvas.shape[1] - w - 1)
+    v = min(max(at_px[1], h + 1), canvas.shape[0] - 1)
+    cv2.putText(canvas, text, (u, v), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(canvas, text, (u, v), cv2.FONT_HERSHEY_SIMPLEX, scale, CANDIDATE_MARK_RGB, thick, cv2.LINE_AA)
 
 
 def depth_rgb(depth_m: np.ndarray, max_m: float = 5.0) -> np.ndarray:

@@ -34,11 +34,14 @@ class ResolvedRun:
     spec:    the backend's typed, frozen options (``console.options``), parsed once from the form.
     target:  what is known about the goal instance (JSON-able) or None when unknown;
              a known target means the run is scored.
+    run_id:  the run's id, given by the run manager before the backend is opened (a home's
+             memory notes which run asked for each of its goals: ``console.home_memory``).
     """
 
     backend: str
     spec: RunOptions
     target: Mapping[str, Any] | None
+    run_id: str | None = None
 
     @property
     def options(self) -> dict[str, Any]:

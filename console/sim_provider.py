@@ -397,13 +397,25 @@ class SimProvider:
         """The home a run is in: ``scene-<seed>`` for an episode (the full-size home), else ``home-<seed>``."""
         return home_key("scene" if spec.episode is not None else "home", spec.home_seed)
 
+    @staticmethod
+    def stored_memory_key(options: Mapping[str, Any]) -> str | None:
+        """``memory_key`` of a stored run's options (``SimRunOptions.to_json``); None when they
+        are not a simulator run's."""
+        seed = options.get("home_seed")
+        if type(seed) is not int:
+            return None
+        try:
+            return home_key("scene" if options.get("episode") is not None else "home", seed)
+        except ValueError:  # a seed no home key has
+            return None
+
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession:
         spec = resolved.spec
         assert isinstance(spec, SimRunOptions), spec
         if spec.memory == "off":  # from nothing, the home's memory left as it was
             return self._open(resolved, spec, goal_rgb, None, None)
         memories = self.memories()
-        slot = memories.acquire(self.memory_key(spec))
+        slot = memories.acquire(self.memory_key(spec), resolved.run_id)
         try:
             return self._open(resolved, spec, goal_rgb, slot, lambda: memories.release(slot))
         except BaseException:

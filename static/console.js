@@ -50,9 +50,11 @@
   };
   fillHomes();
 
-  // The memory of the selected simulator home (GET /api/memory/{home}): its map, the objects of
-  // earlier requests (each request's final candidates that were not rejected), and forgetting it.
-  let memoryHome = null;
+  // The memory of the selected simulator home (GET /api/memory/{home}): its map (each known object
+  // numbered with its request), the known objects (each request that ended with a candidate not
+  // rejected) with the goal photo they were asked with and "Find it again" (a run from memory with
+  // that photo: POST /api/runs with goal_from_run), and forgetting it.
+  let memoryHome = null, memoryInUse = false;
   const homeChosen = () => {
     const sel = document.getElementById("sim-home");
     const backend = document.getElementById("backend");
@@ -66,9 +68,9 @@
     $("memory-home").textContent = home;
     let m;
     try { m = await imgnav.getJSON(`/api/memory/${encodeURIComponent(home)}`); }
-    catch (e) { $("memory-error").textContent = e.message; return; }
+    catch (e) { memoryError(e.message); return; }
     if (memoryHome !== home) return;  // another home was chosen meanwhile
-    $("memory-error").textContent = "";
+    memoryError("");
     const requests = m.goals.length;
     $("memory-words").textContent = requests
       ? `${requests} ${requests === 1 ? "request" : "requests"} in this home; ${m.keyframes} remembered views `
@@ -76,16 +78,46 @@
       : "Nothing yet: the next run here starts from nothing, and later runs start from what it saw.";
     $("memory-map").hidden = !requests;
     if (requests) $("memory-map").src = `${m.map_url}?t=${Date.now()}`;
+    memoryInUse = m.in_use;
     const list = $("memory-objects");
     list.replaceChildren();
-    for (const g of m.goals) {
-      for (const c of g.candidates.filter((c) => c.state !== "rejected")) {
-        list.append(el("li", { text: `request ${g.goal_index + 1}: ${c.state} object at (${fmt(c.xy_m[0], 1)}, ${fmt(c.xy_m[1], 1)}) m, best score ${fmt(c.best_score, 1)}` }));
-      }
+    for (const o of m.objects) {
+      const more = o.candidates > 1 ? ` (and ${o.candidates - 1} more ${o.candidates === 2 ? "place" : "places"})` : "";
+      const words = `request ${o.request}: ${o.state} object at (${fmt(o.xy_m[0], 1)}, ${fmt(o.xy_m[1], 1)}) m, `
+        + `best score ${fmt(o.best_score, 1)}${more}`;
+      const thumb = o.goal_url
+        ? el("img", { class: "memory-thumb", src: o.goal_url, alt: `the goal photo of request ${o.request}` })
+        : el("span", { class: "memory-thumb none", text: "no photo" });
+      const again = el("button", {
+        type: "button", class: "memory-again", "data-run": o.goal_url ? o.run_id : "",  // no photo: nothing to ask with
+        "aria-label": `Find it again: request ${o.request}`,
+        title: "a new run in this home, from memory, with this request's goal photo (from the start chosen above)",
+        text: "Find it again",
+      });
+      again.disabled = !again.dataset.run || !!activeRun || m.in_use;
+      again.addEventListener("click", () => findAgain(home, o));
+      list.append(el("li", { "data-request": String(o.request) }, thumb, el("span", { text: words }), again));
     }
     if (!list.children.length) list.append(el("li", { class: "hint", text: "no object found yet" }));
     $("memory-forget").disabled = !requests || m.in_use;
   }
+  const memoryError = (msg) => { $("memory-error").textContent = msg || ""; };
+  async function findAgain(home, o) {
+    memoryError("");
+    for (const b of document.querySelectorAll("#memory-objects .memory-again")) b.disabled = true;  // one start at a time
+    const form = new FormData();
+    backendForm.fill(form);  // the home and the start chosen above
+    form.delete("gallery_item");  // the photo is the request's own
+    form.set("home", home);
+    form.append("goal_from_run", o.run_id);
+    await startRun(form, `request ${o.request} of ${home} asked again, from memory`, memoryError);
+    setFindAgain();
+  }
+  const setFindAgain = () => {
+    for (const b of document.querySelectorAll("#memory-objects .memory-again")) {
+      b.disabled = !b.dataset.run || !!activeRun || memoryInUse;
+    }
+  };
   $("memory-forget").addEventListener("click", async () => {
     const home = memoryHome;
     if (!home) return;
@@ -110,6 +142,7 @@
     setBadge();
     $("stop").disabled = !runId;
     $("start").disabled = !!runId || !photo;
+    setFindAgain();
     // the live card stays after the run ends, with its last state, until the next run starts
     if (runId && $("live-id").textContent !== runId) {
       $("live-card").hidden = false; $("live-id").textContent = runId; $("live-state").textContent = "";
@@ -216,16 +249,19 @@
     form.append("goal_image", photo, photoName);
     backendForm.fill(form);
     if (homeChosen() && !$("memory-use").checked) form.append("memory", "off");
+    await startRun(form, "", showError);
+  });
+  async function startRun(form, what, showErr) {
     $("start").disabled = true;
     try {
       const run = await imgnav.postForm("/api/runs", form);
-      log(`run ${run.id} started`);
+      log(`run ${run.id} started${what ? `: ${what}` : ""}`);
       selected = run.id;
       setActive(run.id);
       $("live-words").textContent = "Preparing the robot and the agent...";
       await refreshRuns();
-    } catch (e) { showError(e.message); $("start").disabled = false; }
-  });
+    } catch (e) { showErr(e.message); $("start").disabled = !!activeRun || !photo; }
+  }
   $("stop").addEventListener("click", async () => {
     if (!activeRun) return;
     try { await imgnav.postJSON(`/api/runs/${activeRun}/stop`); log(`stop requested for ${activeRun}`); }

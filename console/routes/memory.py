@@ -1,7 +1,12 @@
-"""The agent's memory of each simulator home (issue 31; ``console.home_memory``): what it holds,
-the remembered map as a picture, and forgetting a home. Forgetting goes through the same checks
-as every other change the console accepts: the Host check and the same-origin check of every
-unsafe method (``console.security``), and the token when the console has one (``TokenDep``)."""
+"""The agent's memory of each simulator home (issue 31; ``console.home_memory``): what it holds
+(its known objects with the goal photo each was asked with), the remembered map as a picture,
+and forgetting a home. Forgetting goes through the same checks as every other change the console
+accepts: the Host check and the same-origin check of every unsafe method (``console.security``),
+and the token when the console has one (``TokenDep``).
+
+Asking for a known object again is a run start (``POST /api/runs`` with ``goal_from_run``, the
+same route and checks as every run): ``goal_from_run_photo`` and ``check_goal_from_run`` here
+say which runs' photos it accepts: a run the home's memory remembers as one of its requests."""
 
 from __future__ import annotations
 
@@ -11,11 +16,15 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
+from console.artifacts import run_dir, valid_run_id
 from console.context import Console
 from console.deps import ConsoleDep, TokenDep, error
 from console.home_memory import HomeMemories, MemoryInUse
 from console.jsonio import json_safe
+from console.options import RunForm, SimRunOptions
 from console.routes.sim import _sim
+from console.session import BackendProvider, ResolvedRun
+from console.sim_provider import SimProvider
 
 router = APIRouter(prefix="/api/memory", tags=["memory"])
 
@@ -37,7 +46,19 @@ async def get_memory(home: str, console: ConsoleDep) -> dict[str, Any]:
     memories = _memories(console, home)
     summary = await run_in_threadpool(memories.summary, home)  # the first read loads the file
     summary["map_url"] = f"/api/memory/{home}/map.png"
+    for obj in summary["objects"]:
+        obj["goal_url"] = _goal_url(console, obj["run_id"])
     return json_safe(summary)
+
+
+def _goal_url(console: Console, run_id: str | None) -> str | None:
+    """The goal photo of the run that asked for an object (the run's own artifact route); None
+    when there is no such run (an older memory, the evaluation) or it or its photo is gone."""
+    if run_id is None or not valid_run_id(run_id) or console.store.get_run(run_id) is None:
+        return None
+    if not (run_dir(console.data_dir, run_id) / "goal.png").is_file():
+        return None
+    return f"/api/runs/{run_id}/artifacts/goal.png"
 
 
 @router.get("/{home}/map.png", summary="The remembered map with the known objects")
@@ -55,3 +76,46 @@ async def forget_memory(home: str, console: ConsoleDep) -> dict[str, Any]:
     except MemoryInUse as exc:
         raise error(409, "memory_in_use", str(exc)) from None
     return {"home": home, "forgotten": forgotten}
+
+
+# --- a known object asked for again: POST /api/runs with goal_from_run -----------------------
+
+
+def goal_from_run_photo(
+    console: Console, provider: BackendProvider, run_id: str, form: RunForm, photo_given: bool
+) -> tuple[dict[str, Any], bytes]:
+    """The stored run named by ``goal_from_run`` and its goal photo (``goal.png``: the photo as its
+    agent was given it), after the checks that need no resolved options; a 422 otherwise."""
+    if photo_given:
+        raise error(422, "two_goals", "send a goal photo (goal_image) or goal_from_run, not both")
+    if not isinstance(provider, SimProvider):
+        raise error(422, "no_memory", f"goal_from_run: only a simulator home has a memory, not the {provider.label}")
+    if form.memory == "off":
+        raise error(422, "memory_off", "goal_from_run asks for a remembered object: the run needs memory on")
+    if form.gallery_item is not None:
+        raise error(422, "two_goals", "goal_from_run gives that run's goal photo: drop gallery_item")
+    row = console.store.get_run(run_id) if valid_run_id(run_id) else None
+    if row is None:
+        raise error(422, "unknown_run", f"goal_from_run: no run {run_id[:40]!r}")
+    path = run_dir(console.data_dir, run_id) / "goal.png"
+    if not path.is_file():
+        raise error(422, "no_goal_photo", f"goal_from_run: run {run_id} has no goal photo (goal.png) any more")
+    return row, path.read_bytes()
+
+
+def check_goal_from_run(provider: BackendProvider, resolved: ResolvedRun, row: dict[str, Any]) -> None:
+    """A run may take the goal photo of ``row``'s run only in that run's home, and only while the
+    home's memory remembers that run's request (a 422 otherwise)."""
+    assert isinstance(provider, SimProvider) and isinstance(resolved.spec, SimRunOptions)  # goal_from_run_photo
+    key = provider.memory_key(resolved.spec)
+    source = provider.stored_memory_key(row["options"]) if row["backend"] == provider.name else None
+    run_id = row["id"]
+    if source != key:
+        where = f"in {source}" if source is not None else f"on the {row['backend']} backend"
+        raise error(422, "foreign_run", f"goal_from_run: run {run_id} was {where}, not in {key}: ask for it there")
+    if not provider.memories().remembers(key, run_id):
+        raise error(
+            422,
+            "not_remembered",
+            f"goal_from_run: the memory of {key} holds no request of run {run_id} (forgotten, or run with memory off)",
+        )

@@ -17,6 +17,7 @@ from console.jsonio import json_safe
 from console.manager import RunConflict
 from console.options import RunForm
 from console.photos import PhotoError, decode_photo
+from console.routes.memory import check_goal_from_run, goal_from_run_photo
 from console.session import OptionsError, ProviderUnavailable
 from console.words import distance_driven_m, run_summary, timing_rows
 
@@ -77,11 +78,13 @@ def describe_backend(name: str, console: ConsoleDep) -> dict[str, Any]:
     return json_safe({"name": name, "label": provider.label, "available": ok, "why": why, **provider.describe()})
 
 
-@router.post("/api/runs", status_code=201, summary="Start a run with a goal photo")
+@router.post("/api/runs", status_code=201, summary="Start a run with a goal photo (or an earlier run's)")
 async def start_run(
     request: Request,
     console: ConsoleDep,
-    goal_image: Annotated[UploadFile, File(description="the goal photo: JPEG, PNG, WebP or HEIC")],
+    goal_image: Annotated[
+        UploadFile | None, File(description="the goal photo: JPEG, PNG, WebP or HEIC (required without goal_from_run)")
+    ] = None,
     backend: Annotated[str | None, Form(description="backend name (default: the simulator)")] = None,
     home: Annotated[str | None, Form(description="simulator home id (default: the first)")] = None,
     start: Annotated[
@@ -100,6 +103,13 @@ async def start_run(
             "it; 'off' starts from nothing and leaves the home's memory as it was"
         ),
     ] = None,
+    goal_from_run: Annotated[
+        str | None,
+        Form(
+            description="simulator: instead of a photo, the goal photo of an earlier run whose request the home's "
+            "memory remembers (asking for a known object again, from memory); only in that run's home"
+        ),
+    ] = None,
     token: Annotated[str | None, Form(description="the console token when it is required")] = None,
 ) -> JSONResponse:
     received_s = time.time()
@@ -114,12 +124,6 @@ async def start_run(
     active = console.manager.active_run_id
     if active is not None:  # answer before reading the photo; start() checks again under its lock
         raise error(409, "run_active", f"run {active} is active; stop it or wait for it to end")
-    data = await goal_image.read(console.config.photo_limits.max_bytes + 1)
-    t0 = time.perf_counter()
-    try:
-        photo = await run_in_threadpool(decode_photo, data, console.config.photo_limits)
-    except PhotoError as exc:
-        raise error(exc.status, exc.code, str(exc)) from None
     form = RunForm.of(
         home=home,
         start=start,
@@ -129,6 +133,20 @@ async def start_run(
         max_steps=max_steps,
         memory=memory,
     )
+    source = None  # goal_from_run: the stored run whose goal photo this run is given
+    if goal_from_run:
+        source, data = await run_in_threadpool(
+            goal_from_run_photo, console, provider, goal_from_run, form, goal_image is not None
+        )
+    elif goal_image is None:
+        raise error(422, "no_goal_image", "send the goal photo (goal_image), or goal_from_run")
+    else:
+        data = await goal_image.read(console.config.photo_limits.max_bytes + 1)
+    t0 = time.perf_counter()
+    try:
+        photo = await run_in_threadpool(decode_photo, data, console.config.photo_limits)
+    except PhotoError as exc:
+        raise error(exc.status, exc.code, str(exc)) from None
     t1 = time.perf_counter()
     try:
         # in a thread: checking a custom start builds the home's geometry once (~0.5 s)
@@ -137,9 +155,13 @@ async def start_run(
         raise error(422, "bad_options", str(exc)) from None
     except ProviderUnavailable as exc:
         raise error(503, "backend_unavailable", str(exc)) from None
+    if source is not None:  # in a thread: the first look at the home's memory reads its file
+        await run_in_threadpool(check_goal_from_run, provider, resolved, source)
     request_timings = {"decode_s": t1 - t0, "resolve_s": time.perf_counter() - t1}  # the run's timings keep them
     try:
-        run_id = console.manager.start(resolved, photo, data, received_s, request_timings)
+        run_id = console.manager.start(
+            resolved, photo, data, received_s, request_timings, None if source is None else source["id"]
+        )
     except RunConflict as exc:
         raise error(409, "run_active", str(exc)) from None
     except RuntimeError as exc:

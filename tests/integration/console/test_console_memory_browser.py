@@ -1,6 +1,7 @@
 """The console page's memory panel (issue 31) in a real headless Chromium, with the real
-simulator and agent: empty before the first run in a home, its map and known objects after one,
-and Forget empties it."""
+simulator and agent: empty before the first run in a home, its map and known objects (with the
+goal photo each was asked with) after one, "Find it again" starts a run from memory with that
+photo, and Forget empties it."""
 
 from __future__ import annotations
 
@@ -52,7 +53,7 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     resp = httpx.post(
         f"{server.url}/api/runs",
         files={"goal_image": ("g.png", png, "image/png")},
-        data={"home": home, "gallery_item": g["item"], "max_steps": "5"},
+        data={"home": home, "gallery_item": g["item"], "max_steps": "6"},  # finds the couch from the first start
     )
     assert resp.status_code == 201, resp.text
     run_id = resp.json()["id"]
@@ -68,17 +69,32 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
         30,
         "memory map loaded",
     )
-    kept = [c for c in memory["goals"][0]["candidates"] if c["state"] != "rejected"]
+    (known,) = memory["objects"]
+    assert known["run_id"] == run_id and known["goal_url"]
     items = page.locator("#memory-objects li").all_text_contents()
-    if kept:
-        assert len(items) == len(kept) and all(t.startswith("request 1: ") for t in items), items
-    else:
-        assert items == ["no object found yet"]
+    assert len(items) == 1 and items[0].startswith("request 1: ") and items[0].endswith("Find it again"), items
+    thumb = "#memory-objects li[data-request='1'] img.memory-thumb"
+    assert page.get_attribute(thumb, "src") == known["goal_url"]
+    poll(lambda: page.evaluate(f'() => document.querySelector("{thumb}").naturalWidth'), bool, 30, "thumbnail")
     assert not page.is_disabled("#memory-forget")
     problems = check_page(page)
     assert not problems, problems
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.locator("#memory-card").screenshot(path=str(ARTIFACTS / "memory_panel.png"))
+
+    # "Find it again": a run in this home, from memory, with the request's goal photo (stopped at once)
+    page.click("#memory-objects li[data-request='1'] button.memory-again")
+    poll(lambda: page.is_enabled("#stop"), bool, 60, "run from memory active")
+    assert page.is_disabled("#memory-objects li[data-request='1'] button.memory-again")  # one run at a time
+    again = httpx.get(f"{server.url}/api/runs").json()["runs"][0]
+    assert again["id"] != run_id and again["goal"]["from_run"] == run_id, again
+    assert again["options"]["home"] == home and "memory" not in again["options"]  # memory on
+    page.click("#stop")
+    poll(lambda: httpx.get(f"{server.url}/api/runs/{again['id']}").json()["status"], lambda s: s in FINAL, 300, "end")
+    photos = [httpx.get(f"{server.url}/api/runs/{r}/artifacts/goal.png").content for r in (run_id, again["id"])]
+    assert photos[0] == photos[1]
+    assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"][-1]["run_id"] == again["id"]
+    poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("2 requests"), 30, "second request")
 
     page.click("#memory-forget")
     poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("Nothing yet"), 30, "forgotten")
@@ -94,9 +110,9 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     page.click("#stop")
     runs = poll(
         lambda: httpx.get(f"{server.url}/api/runs").json()["runs"],
-        lambda rs: rs and rs[0]["id"] != run_id and rs[0]["status"] in FINAL,
+        lambda rs: rs and rs[0]["id"] not in (run_id, again["id"]) and rs[0]["status"] in FINAL,
         300,
-        "second run end",
+        "third run end",
     )
     assert runs[0]["options"]["memory"] == "off", runs[0]["options"]
     assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []

@@ -1,5 +1,8 @@
 """The console's memory of each home (console/home_memory.py, console/routes/memory.py, issue 31):
-the file format, one memory per home, a corrupt file, forgetting, and the endpoints' checks."""
+the file format (with each goal's run, and the format before it), one memory per home, a corrupt
+file, forgetting, the endpoints' checks, the known objects with their goal photos, and asking for
+one again (``POST /api/runs`` with ``goal_from_run``) only with the console's checks and only in
+its own home."""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ import json
 import logging
 import math
 from collections.abc import Iterator
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +27,16 @@ from agent.reid import Features
 from agent.types import CandidateInfo, Pose2D
 from console import sim_adapter
 from console.api import create_app
+from console.artifacts import run_dir
 from console.context import Console, ConsoleConfig
-from console.home_memory import HomeMemories, MemoryInUse, memory_bytes, memory_from_bytes
+from console.home_memory import HomeMemories, MemoryFileError, MemoryInUse, memory_bytes, memory_from_bytes
 from console.options import SimRunOptions
+from console.pictures import CANDIDATE_MARK_RGB, render_map
 from console.session import ResolvedRun
+from console.sim_catalog import HomeEntry, Start
 from console.sim_provider import SimProvider
 from tests.helpers.agent_scenes import observation
+from tests.helpers.console_testkit import encode, poll, textured_rgb
 
 CONFIG = AgentConfig()
 
@@ -329,3 +336,226 @@ def test_the_memory_endpoints_show_a_home_and_forget_it_only_with_the_consoles_c
     assert not path.exists()
     after = client.get("/api/memory/home-0").json()
     assert after["keyframes"] == 0 and after["goals"] == []
+
+
+# --- each goal's run ---------------------------------------------------------------------------
+
+
+def rewritten(data: bytes, change: Any) -> bytes:
+    """A memory file with its JSON member changed by ``change(meta)`` (the arrays kept)."""
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        arrays = {name: z[name] for name in z.files}
+    meta = json.loads(arrays.pop("meta").tobytes().decode())
+    change(meta)
+    buf = io.BytesIO()
+    np.savez(buf, meta=np.frombuffer(json.dumps(meta).encode(), np.uint8), **arrays)
+    return buf.getvalue()
+
+
+def test_each_goals_run_is_saved_and_read_back_and_a_file_from_before_run_ids_still_reads() -> None:
+    mem = filled_memory()
+    mem.goals[1] = replace(mem.goals[1], run_id="0123456789ab")
+    data = memory_bytes(mem, None)
+    back, _ = memory_from_bytes(data, CONFIG.memory, CONFIG.mapping, "xfeat")
+    assert [g.run_id for g in back.goals] == [None, "0123456789ab"]
+    assert back.summary() == mem.summary() and back.summary()["goals"][1]["run_id"] == "0123456789ab"
+
+    def format_1(meta: dict[str, Any]) -> None:  # as the console wrote it before goals had runs
+        meta["format"] = 1
+        for g in meta["goals"]:
+            del g["run_id"]
+
+    old, _ = memory_from_bytes(rewritten(data, format_1), CONFIG.memory, CONFIG.mapping, "xfeat")
+    assert [g.run_id for g in old.goals] == [None, None]
+    assert [replace(g, run_id=None) for g in back.goals] == old.goals and len(old) == len(back) > 0
+
+    def bad_run(meta: dict[str, Any]) -> None:
+        meta["goals"][1]["run_id"] = "../../etc"
+
+    def later(meta: dict[str, Any]) -> None:
+        meta["format"] = 3
+
+    with pytest.raises(MemoryFileError, match="not a run id"):
+        memory_from_bytes(rewritten(data, bad_run), CONFIG.memory, CONFIG.mapping, "xfeat")
+    with pytest.raises(MemoryFileError, match=r"format 3, not one of \(1, 2\)"):
+        memory_from_bytes(rewritten(data, later), CONFIG.memory, CONFIG.mapping, "xfeat")
+
+
+def test_the_goal_a_run_begins_carries_its_id_while_it_runs_and_after_a_restart(tmp_path: Path) -> None:
+    store = memories(tmp_path)
+    first = store.acquire("home-0", "aaaaaaaaaaaa")
+    first.memory.begin_goal(CONFIG.mapping)  # the run's agent starts its goal
+    assert [g["run_id"] for g in store.summary("home-0")["goals"]] == ["aaaaaaaaaaaa"]  # while it runs
+    assert not store.remembers("home-0", "aaaaaaaaaaaa")  # stamped only when the run ends
+    store.release(first)
+    assert store.remembers("home-0", "aaaaaaaaaaaa")
+    no_goal = store.acquire("home-0", "bbbbbbbbbbbb")  # a run that ends before its agent's reset
+    store.release(no_goal)
+    third = store.acquire("home-0", "cccccccccccc")
+    third.memory.begin_goal(CONFIG.mapping)
+    store.release(third)
+    again = memories(tmp_path)  # a new console on the same data directory
+    assert [g.run_id for g in again.slot("home-0").memory.goals] == ["aaaaaaaaaaaa", "cccccccccccc"]
+    assert [g["run_id"] for g in again.summary("home-0")["goals"]] == ["aaaaaaaaaaaa", "cccccccccccc"]
+    assert not again.remembers("home-0", "bbbbbbbbbbbb") and not again.remembers("home-1", "aaaaaaaaaaaa")
+
+
+def test_the_map_numbers_each_known_object_with_its_request(tmp_path: Path) -> None:
+    point = np.array([[0.0, 0.0]])
+    plain, view = render_map(None, extra_points_xy_m=point, size_px=240)
+    labelled, _ = render_map(None, extra_points_xy_m=point, extra_labels=["2"], size_px=240)
+    changed = np.argwhere((plain != labelled).any(axis=2))
+    assert len(changed) > 20  # the digit's pixels
+    u, v = view.to_px(point)[0]
+    assert changed[:, 1].min() > u and changed[:, 0].max() < v + 2  # beside the mark, up and to the right
+    assert (labelled == CANDIDATE_MARK_RGB).all(axis=2).sum() > (plain == CANDIDATE_MARK_RGB).all(axis=2).sum()
+    # the memory's map: both requests found the object at (1.25, -2.5): one mark, numbered with both
+    store = memories(tmp_path)
+    slot = store.acquire("home-0")
+    slot.memory = mem = filled_memory()
+    store.release(slot)
+    assert mem.grid is not None
+    drawn = np.asarray(Image.open(io.BytesIO(store.map_png("home-0"))).convert("RGB"))
+    one = np.array([[1.25, -2.5]])
+    expected, _ = render_map(mem.grid.snapshot(), pose=mem.last_pose, extra_points_xy_m=one, extra_labels=["1,2"])
+    assert np.array_equal(drawn, expected)
+
+
+HOMES = {
+    f"home-{seed}": HomeEntry(f"home-{seed}", seed, f"home {seed}", 3, (Start("r0", "middle", (1.0, 1.0, 0.0)),), ())
+    for seed in (0, 1)
+}
+
+
+@dataclass(frozen=True)
+class FindConsole:
+    client: TestClient
+    console: Console
+    provider: SimProvider
+    runs: dict[str, str]  # what each stored run is: its run id
+
+
+def stored_run(console: Console, run_id: str, seed: int, photo: bytes | None) -> None:
+    """A finished simulator run in ``home-<seed>`` as the store and the run's files keep it."""
+    options = SimRunOptions(seed, (1.0, 1.0, 0.0), 5, home=f"home-{seed}", start="r0").to_json()
+    console.store.create_run(
+        run_id, backend="sim", options=options, goal={"path": "goal.png"}, target=None, created_s=1.0
+    )
+    console.store.update_run(run_id, status="finished")
+    if photo is not None:
+        run_dir(console.data_dir, run_id).mkdir(parents=True)
+        (run_dir(console.data_dir, run_id) / "goal.png").write_bytes(photo)
+
+
+@pytest.fixture
+def find_console(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[FindConsole]:
+    """A console with a token and two homes (no simulator: opening a run fails): home-0 remembers
+    two requests, of a run that is gone and of a stored run ("asked"); home-1 one ("other");
+    "unremembered" is a stored run in home-0 its memory does not hold."""
+    provider = SimProvider(tmp_path / "data")
+    monkeypatch.setattr(provider, "_homes", HOMES)
+    monkeypatch.setattr(provider, "_ready", True)
+    runs = {"gone": "00000000000a", "asked": "00000000000b", "other": "00000000000c", "unremembered": "00000000000d"}
+    store = provider.memories()
+    for key, run_ids in (("home-0", [runs["gone"], runs["asked"]]), ("home-1", [runs["other"]])):
+        slot = store.acquire(key)
+        slot.memory = filled_memory()
+        slot.memory.goals = [replace(g, run_id=r) for g, r in zip(slot.memory.goals, run_ids, strict=False)]
+        store.release(slot)
+    console = Console(
+        ConsoleConfig(data_dir=tmp_path / "data", viewer=None, token="sesame", allowed_hosts=("testserver",)),
+        {"sim": provider},
+    )
+    photo = encode(textured_rgb(64, 80, seed=3), "PNG")
+    with TestClient(create_app(console)) as client:
+        stored_run(console, runs["asked"], 0, photo)
+        stored_run(console, runs["other"], 1, photo)
+        stored_run(console, runs["unremembered"], 0, photo)
+        yield FindConsole(client, console, provider, runs)
+
+
+def test_the_known_objects_show_the_goal_photo_of_their_run_and_none_for_a_run_that_is_gone(
+    find_console: FindConsole,
+) -> None:
+    client, runs = find_console.client, find_console.runs
+    body = client.get("/api/memory/home-0").json()
+    assert [g["run_id"] for g in body["goals"]] == [runs["gone"], runs["asked"]]
+    objects = body["objects"]  # both requests ended with a confirmed candidate (and a rejected one)
+    assert [(o["request"], o["run_id"], o["state"], o["best_score"], o["candidates"]) for o in objects] == [
+        (1, runs["gone"], "confirmed", 31.5, 1),
+        (2, runs["asked"], "confirmed", 31.5, 1),
+    ]
+    assert objects[0]["goal_url"] is None  # its run was deleted: no thumbnail, no error
+    assert objects[1]["goal_url"] == f"/api/runs/{runs['asked']}/artifacts/goal.png"
+    photo = client.get(objects[1]["goal_url"])
+    assert photo.status_code == 200 and Image.open(io.BytesIO(photo.content)).size == (80, 64)
+    (run_dir(find_console.console.data_dir, runs["asked"]) / "goal.png").unlink()  # its files removed
+    assert [o["goal_url"] for o in client.get("/api/memory/home-0").json()["objects"]] == [None, None]
+
+
+def test_finding_an_object_again_needs_the_token_and_a_run_this_home_remembers(
+    find_console: FindConsole, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    client, console, runs = find_console.client, find_console.console, find_console.runs
+    opened: list[Any] = []
+
+    def no_simulator(**kw: Any) -> Any:
+        opened.append((kw["memory"].key, kw["memory"].run_id))
+        raise RuntimeError("no simulator in this test")
+
+    monkeypatch.setattr(sim_adapter, "open_session", no_simulator)
+
+    def find(run_id: str, headers: dict[str, str] | None = None, **form: Any) -> Any:
+        data = {"home": "home-0", "start": "r0", "goal_from_run": run_id, **form}
+        return client.post("/api/runs", data=data, headers={"X-Imgnav-Token": "sesame", **(headers or {})})
+
+    refused = {
+        "no token": client.post("/api/runs", data={"home": "home-0", "goal_from_run": runs["asked"]}),
+        "wrong token": find(runs["asked"], {"X-Imgnav-Token": "wrong"}),
+        "another origin": find(runs["asked"], {"Origin": "http://evil.example"}),
+        "another host": find(runs["asked"], {"Host": "evil.example"}),
+        "malformed id": find("../../etc/passwd"),
+        "unknown run": find("0123456789ff"),
+        "deleted run": find(runs["gone"]),  # remembered, but its run is gone
+        "another home's": find(runs["other"]),
+        "not remembered": find(runs["unremembered"]),
+        "memory off": find(runs["asked"], memory="off"),
+        "and a gallery item": find(runs["asked"], gallery_item="home-0/i0-v0"),
+    }
+    photo = {"goal_image": ("g.png", encode(textured_rgb(64, 80, seed=4), "PNG"), "image/png")}
+    refused["and a photo"] = client.post(
+        "/api/runs", files=photo, data={"goal_from_run": runs["asked"], "token": "sesame"}
+    )
+    assert refused.pop("another host").status_code == 400  # the Host check (DNS rebinding): a plain text answer
+    got = {k: (r.status_code, r.json()["detail"]["code"]) for k, r in refused.items()}
+    assert got == {
+        "no token": (401, "token_required"),
+        "wrong token": (401, "token_required"),
+        "another origin": (403, "cross_origin"),
+        "malformed id": (422, "unknown_run"),
+        "unknown run": (422, "unknown_run"),
+        "deleted run": (422, "unknown_run"),
+        "another home's": (422, "foreign_run"),
+        "not remembered": (422, "not_remembered"),
+        "memory off": (422, "memory_off"),
+        "and a gallery item": (422, "two_goals"),
+        "and a photo": (422, "two_goals"),
+    }, {k: r.text for k, r in refused.items()}
+    assert "was in home-1, not in home-0" in refused["another home's"].json()["detail"]["message"]
+    stored = {runs["asked"], runs["other"], runs["unremembered"]}
+    assert {r["id"] for r in client.get("/api/runs").json()["runs"]} == stored and opened == []  # none started
+    no_photo = client.post("/api/runs", data={"home": "home-0", "token": "sesame"})
+    assert (no_photo.status_code, no_photo.json()["detail"]["code"]) == (422, "no_goal_image")
+
+    # the run the home remembers: started with its goal photo, from memory, in its home
+    ok = find(runs["asked"])
+    assert ok.status_code == 201, ok.text
+    new = ok.json()
+    assert new["goal"]["from_run"] == runs["asked"] and new["options"]["home"] == "home-0"
+    assert "memory" not in new["options"]  # on
+    source_png = (run_dir(console.data_dir, runs["asked"]) / "goal.png").read_bytes()
+    assert (run_dir(console.data_dir, new["id"]) / "goal_upload.png").read_bytes() == source_png
+    ended = poll(lambda: client.get(f"/api/runs/{new['id']}").json(), lambda r: r["status"] == "failed", 30, "end")
+    assert "no simulator in this test" in ended["outcome_detail"]
+    assert opened == [("home-0", new["id"])]  # the home's memory, noting the goal as this run's
+    assert not find_console.provider.memories().slot("home-0").in_use  # released when its open failed
