@@ -57,6 +57,13 @@ class Viewer:
         self.server.gui.configure_theme(show_share_button=False, show_logo=False, control_width="small")
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("+z")
+        # Plain lights, no image-based lighting: viser's default environment map (an HDRI) costs a
+        # browser without a GPU (software WebGL) 8-12 s of frozen page when the first lit object
+        # appears, and the scene (a map, a path, a robot) gains nothing from reflections. Its
+        # default lights shine from above and below; an ambient light lights the sides.
+        self.server.scene.configure_environment_map(None)
+        self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+        self.server.scene.add_light_ambient("/ambient_light", intensity=1.5)
         # Look down on the start area from behind and above (a home is ~5-10 m across).
         self.server.initial_camera.position = (-4.0, -4.0, 7.0)
         self.server.initial_camera.look_at = (1.5, 1.5, 0.0)
