@@ -47,7 +47,8 @@ def test_workers_stop_when_the_evaluation_is_killed(small_episode_set: Path, tmp
         os.kill(proc.pid, signal.SIGKILL)  # no finally, no handler: only the workers can notice
         proc.wait(10)
         # each worker sees its parent gone (it was re-parented) and ends within about a second
-        poll(lambda: [w for w in workers if _alive(w)], lambda left: not left, 20, "workers ended")
+        left = poll(lambda: [w for w in workers if _alive(w)], lambda left: not left, 20, "workers ended")
+        assert len(workers) == 2 and left == []
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -19,20 +19,29 @@ from console.replay import decode_map, encode_map
 from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 
+def scripted_console(tmp_path: Path, stop_after: int) -> Console:
+    return Console(
+        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
+        {"scripted": ScriptedProvider(stop_after=stop_after)},
+    )
+
+
+def run_to_the_end(client: TestClient) -> str:
+    """Start a scripted run and wait until it has finished; its id."""
+    run = client.post(
+        "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
+    )
+    run_id = run.json()["id"]
+    poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "finished")
+    return run_id
+
+
 @pytest.fixture
 def finished(tmp_path: Path) -> Iterator[tuple[Console, TestClient, str]]:
-    console = Console(
-        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
-        {"scripted": ScriptedProvider(stop_after=25)},
-    )
+    console = scripted_console(tmp_path, 25)
     client = TestClient(create_app(console))
     with client:
-        run = client.post(
-            "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
-        )
-        run_id = run.json()["id"]
-        poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "finished")
-        yield console, client, run_id
+        yield console, client, run_to_the_end(client)
     console.close()
 
 
@@ -147,10 +156,7 @@ def test_latest_step_for_the_live_view(finished) -> None:
 def test_a_step_is_announced_only_once_its_pictures_can_be_loaded(tmp_path: Path) -> None:
     """The live view asks for the latest step when it hears of one: at that moment the step's
     row and pictures are both stored (the step event used to come first, a 404 in the browser)."""
-    console = Console(
-        ConsoleConfig(data_dir=tmp_path, viewer=None, allowed_hosts=("testserver",)),
-        {"scripted": ScriptedProvider(stop_after=8)},
-    )
+    console = scripted_console(tmp_path, 8)
     seen: list[tuple[int, int | None]] = []
     publish = console.hub.publish
 
@@ -162,11 +168,7 @@ def test_a_step_is_announced_only_once_its_pictures_can_be_loaded(tmp_path: Path
     console.hub.publish = spy  # type: ignore[method-assign]
     client = TestClient(create_app(console))
     with client:
-        run = client.post(
-            "/api/runs", files={"goal_image": ("g.jpg", encode(textured_rgb(120, 160), "JPEG"), "image/jpeg")}
-        )
-        run_id = run.json()["id"]
-        poll(lambda: client.get(f"/api/runs/{run_id}").json()["status"], lambda s: s == "finished")
+        run_to_the_end(client)
     console.close()
     assert [s for s, _ in seen] == list(range(9))
     assert all(latest == step for step, latest in seen), seen
