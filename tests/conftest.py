@@ -1,8 +1,8 @@
 """Suite-wide settings: nothing is written into the checkout; every test under
 tests/integration is marked ``integration`` (real PyBullet homes, servers, a browser), so that
-``-m "not integration"`` leaves them out. `make test` hands tests to the xdist workers one by one
-(``--dist load``): a module's module-scoped fixture is built on each worker that runs one of its
-tests. (xdist_group marks, which this file used to set to keep such tests together, are not seen
+``-m "not integration"`` leaves them out. `make test` runs xdist with ``--dist loadgroup`` and no
+group marks (the Makefile says why): a module's module-scoped fixture is built on each worker
+that runs one of its tests. (xdist_group marks, which this file used to set to keep such tests together, are not seen
 by pytest-xdist 3.8 under pytest 9.2: it suffixes ``item._nodeid``, which pytest 9 no longer
 reads. Whole files per worker, ``--dist loadfile``, built them once but left a longer tail: 342 s
 against 315 s for the suite in CI.)"""
