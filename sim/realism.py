@@ -274,12 +274,25 @@ class RealismRun:
         m = self.profile.rgb
         if m is None:
             return rgb
+        self._drift_colour(m)
+        return noisy_rgb(rgb, m, np.exp(self._log_gain + self._log_wb), self._rng["rgb"])
+
+    def skip_frames(self, frames: int) -> None:
+        """Let the exposure and white-balance drift run on for ``frames`` frames that are not
+        delivered (the calibration's robot frames: a frame from within a run, not its first)."""
+        m = self.profile.rgb
+        if m is None:
+            return
+        for _ in range(frames):
+            self._drift_colour(m)
+
+    def _drift_colour(self, m: RgbModel) -> None:
+        """One frame's step of the exposure and white-balance random walks."""
         rng = self._rng["rgb"]
         self._log_gain = float(
             np.clip(self._log_gain + m.gain_step * rng.standard_normal(), -m.gain_bound, m.gain_bound)
         )
         self._log_wb = np.clip(self._log_wb + m.wb_step * rng.standard_normal(3), -m.wb_bound, m.wb_bound)
-        return noisy_rgb(rgb, m, np.exp(self._log_gain + self._log_wb), rng)
 
     def goal_photo(self, image: np.ndarray) -> np.ndarray:
         m = self.profile.goal_photo

@@ -15,6 +15,13 @@
    OUT/<matcher>_<score>.json, and the calibration file the agent reads,
    agent/calibration/<matcher>_<score>.json (unless ``--no-write-agent``).
 
+``--realism PROFILE`` (default ``clean``: the above, unchanged) scores each pair (i, j) as a
+phone-like goal photo of image i against a robot camera frame of image j, each processed by the
+profile's own models with a seed from the image's name (``calibration_realism``). Its outputs name
+the profile (OUT/<matcher>_<profile>_pr.png, OUT/<matcher>_<profile>_<score>.json,
+OUT/summary_<profile>.*) and add the figures at the tau the agent uses today; the agent's
+calibration files are left alone unless ``--write-agent`` asks for them.
+
 Only the train split is used; asking for another split is refused.
 """
 
@@ -30,7 +37,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from agent.reid.base import ScoreKind
     from agent.reid.identifier import MatcherName
+    from sim.evaluation.calibration_core import OperatingPoint
+    from sim.realism import Realism
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +63,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="runs/calibration")
     parser.add_argument("--image-cache", default=None, help="directory of cached goal images (default OUT/images)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
-    parser.add_argument("--no-write-agent", action="store_true", help="do not write agent/calibration/*.json")
+    write = parser.add_mutually_exclusive_group()
+    write.add_argument(
+        "--no-write-agent",
+        action="store_true",
+        help="do not write agent/calibration/*.json (the default under --realism other than clean)",
+    )
+    write.add_argument(
+        "--write-agent",
+        action="store_true",
+        help="write agent/calibration/*.json even under --realism other than clean (the agent's tau then "
+        "comes from the profile's pairs)",
+    )
+    from sim.evaluation.cli import add_realism_arguments
+
+    # --realism: goal photos processed like a phone's against robot frames (calibration_realism);
+    # the pairs, their sampling and weights stay the same
+    add_realism_arguments(
+        parser,
+        realism_help="clean (default): pairs of rendered goal images as they are; stretch: each pair is a "
+        "phone-like goal photo against a robot camera frame, made by the profile's models (seeded by the "
+        "image's name); outputs named by the profile, and agent/calibration/*.json is not written "
+        "unless --write-agent",
+    )
     from sim.evaluation.cli import add_ray_arguments
 
     add_ray_arguments(
@@ -124,6 +156,22 @@ def load_or_sample_images(cache: Path, instances: int, per_instance: int, scene_
 # --- one matcher ------------------------------------------------------------------------
 
 
+def profile_tag(realism: Realism | None) -> str | None:
+    """The profile's part of the output names (None: clean, today's names), e.g. ``stretch`` or
+    ``stretch-goal_photo`` for ``--realism stretch --realism-only goal_photo``."""
+    if realism is None:
+        return None
+    return realism.profile.name.replace("[", "-").replace("]", "")
+
+
+def writes_agent(args: argparse.Namespace, realism: Realism | None) -> bool:
+    """Whether agent/calibration/*.json is written: clean unless ``--no-write-agent``; under a
+    profile only with ``--write-agent``."""
+    if getattr(args, "no_write_agent", False):
+        return False
+    return realism is None or bool(getattr(args, "write_agent", False))
+
+
 def calibrate_matcher(
     matcher_name: MatcherName, entries: list[dict], cache: Path, out: Path, args: argparse.Namespace
 ) -> dict:
@@ -132,10 +180,15 @@ def calibrate_matcher(
     from tqdm import tqdm
 
     from agent.config import load_agent_config
-    from agent.reid.identifier import calibration_path, make_matcher
+    from agent.reid.identifier import calibration_path, make_matcher, resolve_tau
     from sim.episodes import read_rgb
-    from sim.evaluation.calibration_core import make_pairs, plot_curves, pr_curves, score_pairs
+    from sim.evaluation.calibration_core import make_pairs, operating_point, plot_curves, pr_curves
+    from sim.evaluation.calibration_realism import role_features, score_calibration_pairs
+    from sim.evaluation.cli import realism_of
 
+    realism = realism_of(args)
+    tag = profile_tag(realism)
+    stem = matcher_name if tag is None else f"{matcher_name}_{tag}"
     base = load_agent_config(args.config).reid
     cfg = replace(base, matcher=matcher_name, num_threads=args.threads)
     inst = [e["instance"] for e in entries]
@@ -158,20 +211,24 @@ def calibrate_matcher(
     else:
         matcher = make_matcher(cfg)
         t0 = time.perf_counter()
-        feats = [
-            matcher.extract(read_rgb(cache / e["path"]), cfg.goal_max_keypoints)
-            for e in tqdm(entries, desc=f"{matcher_name} features", unit="img")
-        ]
+        goal_feats, frame_feats = role_features(
+            matcher,
+            (read_rgb(cache / e["path"]) for e in tqdm(entries, desc=f"{stem} features", unit="img")),
+            [e["path"] for e in entries],
+            realism,
+            cfg.goal_max_keypoints,
+            cfg.obs_max_keypoints,
+        )
         t_feat = time.perf_counter() - t0
         t0 = time.perf_counter()
-        conf, count = score_pairs(
-            matcher, feats, ps.pairs, tqdm(range(len(ps.pairs)), desc=f"{matcher_name} pairs", unit="pair")
+        conf, count = score_calibration_pairs(
+            matcher, goal_feats, frame_feats, ps.pairs, tqdm(range(len(ps.pairs)), desc=f"{stem} pairs", unit="pair")
         )
         t_match = time.perf_counter() - t0
     cats = np.array([e["category"] for e in entries])
     same_cat = cats[ps.pairs[:, 0]] == cats[ps.pairs[:, 1]]
     np.savez_compressed(
-        out / f"{matcher_name}_scores.npz",
+        out / f"{stem}_scores.npz",
         pairs=ps.pairs,
         label=ps.label,
         weight=ps.weight,
@@ -180,11 +237,24 @@ def calibrate_matcher(
         same_category=same_cat,
     )
     curves = {"conf": pr_curves(conf, ps.label, ps.weight), "count": pr_curves(count, ps.label, ps.weight)}
+    # under a profile: the figures at the tau the agent reads today (its calibration file or
+    # its config), on these pairs
+    at_agent: dict[str, OperatingPoint] = {}
+    if realism is not None:
+        kinds: tuple[ScoreKind, ...] = ("conf", "count")
+        for score_kind, v in zip(kinds, (conf, count), strict=True):
+            try:
+                tau = resolve_tau(replace(cfg, score=score_kind))
+                at_agent[score_kind] = operating_point(v, ps.label, ps.weight, tau)
+            except (FileNotFoundError, ValueError) as exc:
+                log.warning("%s/%s: no tau of the agent to compare with (%s)", matcher_name, score_kind, exc)
     plot_curves(
-        str(out / f"{matcher_name}_pr.png"),
+        str(out / f"{stem}_pr.png"),
         curves,
-        f"{matcher_name}: {len(set(inst))} instances, {len(entries)} images, "
+        f"{matcher_name}{'' if tag is None else f' under {tag} (goal photo vs robot frame)'}: "
+        f"{len(set(inst))} instances, {len(entries)} images, "
         f"{int(ps.label.sum())} same / {int((~ps.label).sum())} of {ps.n_negatives_total} different pairs",
+        marks=at_agent or None,
     )
     results = {}
     for kind, c in curves.items():
@@ -211,8 +281,17 @@ def calibrate_matcher(
             "match_ms_per_pair": 1000 * t_match / max(len(ps.pairs), 1),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         }
-        (out / f"{matcher_name}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
-        if not args.no_write_agent:
+        if realism is not None:
+            res["realism"] = realism.describe()
+            res["frame_max_keypoints"] = cfg.obs_max_keypoints
+            point = at_agent.get(kind)
+            if point is not None:
+                res["agent_tau"] = point.tau
+                res["precision_at_agent_tau"] = point.precision
+                res["recall_at_agent_tau"] = point.recall
+                res["f_at_agent_tau"] = point.f
+        (out / f"{stem}_{kind}.json").write_text(json.dumps(res, indent=1) + "\n")
+        if writes_agent(args, realism):
             calibration_path(matcher_name, kind).write_text(json.dumps(res, indent=1) + "\n")
         log.info(
             "%s/%s: max F %.3f at tau %.4g (P %.3f, R %.3f)",
@@ -233,6 +312,15 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.instances < 100 or args.images_per_instance < 10:
         log.warning("fewer than the protocol's 100 instances x 10 images: a trial run")
+    from sim.evaluation.cli import realism_of
+
+    realism = realism_of(args)
+    if realism is not None and (getattr(args, "ray", None) or getattr(args, "gate", False)):
+        log.error("--realism is for the tau calibration on this machine; not with --ray or --gate")
+        return 2
+    if realism is not None and not writes_agent(args, realism):
+        log.info("under --realism %s: agent/calibration/*.json is not written (--write-agent)", realism.profile.name)
+    tag = profile_tag(realism)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cache = Path(args.image_cache) if args.image_cache else out / "images"
@@ -250,14 +338,35 @@ def run(args: argparse.Namespace) -> int:
         except RuntimeError as exc:  # e.g. the optional matcher is not installed
             log.error("%s: %s", name, exc)
             return 2
-    (out / "summary.json").write_text(json.dumps(table, indent=1) + "\n")
-    lines = ["| matcher | score | tau | max F | precision | recall |", "| --- | --- | --- | --- | --- | --- |"]
+    summary = "summary" if tag is None else f"summary_{tag}"
+    (out / f"{summary}.json").write_text(json.dumps(table, indent=1) + "\n")
+    lines = summary_lines(table)
+    (out / f"{summary}.md").write_text("\n".join(lines) + "\n")
+    log.info("calibration (also in %s):\n%s", out / f"{summary}.md", "\n".join(lines))
+    return 0
+
+
+def summary_lines(table: dict[str, dict[str, dict]]) -> list[str]:
+    """The summary table (under a profile also the figures at the agent's tau)."""
+    agent = any("agent_tau" in r for per in table.values() for r in per.values())
+    head = "| matcher | score | tau | max F | precision | recall |"
+    rule = "| --- | --- | --- | --- | --- | --- |"
+    if agent:
+        head += " agent's tau | precision there | recall there | F there |"
+        rule += " --- | --- | --- | --- |"
+    lines = [head, rule]
     for name, per in table.items():
         for kind, r in per.items():
-            lines.append(
+            line = (
                 f"| {name} | {kind} | {r['tau']:.4g} | {r['max_f']:.3f} | {r['precision_at_tau']:.3f} | "
                 f"{r['recall_at_tau']:.3f} |"
             )
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
-    log.info("calibration (also in %s):\n%s", out / "summary.md", "\n".join(lines))
-    return 0
+            if agent:
+                line += (
+                    f" {r['agent_tau']:.4g} | {r['precision_at_agent_tau']:.3f} | {r['recall_at_agent_tau']:.3f} | "
+                    f"{r['f_at_agent_tau']:.3f} |"
+                    if "agent_tau" in r
+                    else " - | - | - | - |"
+                )
+            lines.append(line)
+    return lines

@@ -55,15 +55,22 @@ def make_pairs(instance_of_image: Sequence[int | str], max_negatives: int, seed:
 
 
 def score_pairs(
-    matcher: Matcher, features: Sequence[Features], pairs: np.ndarray, progress: Iterable | None = None
+    matcher: Matcher,
+    features: Sequence[Features],
+    pairs: np.ndarray,
+    progress: Iterable | None = None,
+    features_obs: Sequence[Features] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(conf, count) per pair: the two score functions from one matching pass."""
+    """(conf, count) per pair: the two score functions from one matching pass. A pair (a, b) is
+    ``features[a]`` (the goal's role) against ``features_obs[b]`` (the frame's role; None: the
+    same list, both images as they are)."""
+    obs = features if features_obs is None else features_obs
     conf = np.zeros(len(pairs), np.float64)
     count = np.zeros(len(pairs), np.float64)
     it = progress if progress is not None else range(len(pairs))
     for k in it:
         a, b = pairs[k]
-        m = matcher.match(features[a], features[b])
+        m = matcher.match(features[a], obs[b])
         conf[k] = float(np.sum(m.confidence, dtype=np.float64))
         count[k] = float(len(m))
     return conf, count
@@ -113,8 +120,35 @@ def pr_curves(scores: np.ndarray, label: np.ndarray, weight: np.ndarray | None =
     return Curves(thr, precision, recall, f)
 
 
-def plot_curves(path: str, curves: dict[str, Curves], title: str) -> None:
-    """PR curves and F over the threshold, one line per label, as a PNG."""
+@dataclass(frozen=True, slots=True)
+class OperatingPoint:
+    """Precision, recall and F of ``score >= tau`` (weighted as the curves are)."""
+
+    tau: float
+    precision: float
+    recall: float
+    f: float
+
+
+def operating_point(scores: np.ndarray, label: np.ndarray, weight: np.ndarray | None, tau: float) -> OperatingPoint:
+    """The figures at a given threshold (e.g. the agent's tau, on pairs it was not chosen on)."""
+    s = np.asarray(scores, np.float64)
+    y = np.asarray(label, bool)
+    w = np.ones(len(s)) if weight is None else np.asarray(weight, np.float64)
+    hit = s >= tau
+    tp = float(np.sum(w[hit & y]))
+    fp = float(np.sum(w[hit & ~y]))
+    precision = tp / (tp + fp) if tp + fp > 0 else 0.0
+    recall = tp / max(float(np.sum(w[y])), 1e-12)
+    f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return OperatingPoint(float(tau), precision, recall, f)
+
+
+def plot_curves(
+    path: str, curves: dict[str, Curves], title: str, marks: dict[str, OperatingPoint] | None = None
+) -> None:
+    """PR curves and F over the threshold, one line per label, as a PNG. ``marks``: per label, an
+    operating point drawn on its curves (a cross, a dashed line at its tau)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -126,6 +160,11 @@ def plot_curves(path: str, curves: dict[str, Curves], title: str) -> None:
         ax1.plot(c.recall[c.best], c.precision[c.best], "o", color=ax1.lines[-1].get_color())
         ax2.plot(c.threshold, c.f, label=f"{name}: tau {c.tau:.3g}")
         ax2.axvline(c.tau, color=ax2.lines[-1].get_color(), ls=":")
+        mark = (marks or {}).get(name)
+        if mark is not None:
+            color = ax2.lines[-1].get_color()
+            ax1.plot(mark.recall, mark.precision, "x", ms=9, color=color, label=f"{name} at tau {mark.tau:.3g}")
+            ax2.axvline(mark.tau, color=color, ls="--", label=f"{name}: F {mark.f:.3f} at tau {mark.tau:.3g}")
     ax1.set(xlabel="recall", ylabel="precision", xlim=(0, 1), ylim=(0, 1.02), title="precision-recall")
     ax2.set(xlabel="threshold tau (score >= tau)", ylabel="F-measure", ylim=(0, 1.02), title="F-measure")
     ax2.set_xscale("symlog", linthresh=1.0)

@@ -66,8 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             spec.add_arguments(parser.add_argument_group(f"{spec.name} agent"))
 
 
-def add_realism_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--realism`` and its options (``imgnav eval`` and ``imgnav console``; sim/realism.py)."""
+def add_realism_arguments(parser: argparse.ArgumentParser, realism_help: str | None = None) -> None:
+    """``--realism`` and its options (``imgnav eval``, ``imgnav console`` and ``imgnav calibrate``,
+    which says what the profile does there in ``realism_help``; sim/realism.py)."""
     from sim.realism import COMPONENTS, PROFILES
 
     g = parser.add_argument_group("realism (a real Stretch's senses and motion; docs/realism.md)")
@@ -75,7 +76,7 @@ def add_realism_arguments(parser: argparse.ArgumentParser) -> None:
         "--realism",
         default="clean",
         choices=list(PROFILES),
-        help="noise profile of the simulated robot: clean (exact, the headline) or stretch",
+        help=realism_help or "noise profile of the simulated robot: clean (exact, the headline) or stretch",
     )
     g.add_argument(
         "--realism-only",
