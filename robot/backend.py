@@ -22,6 +22,12 @@ The same loop that runs in simulation runs here::
   one that arrived after the first observation echoing its step and reporting the motion
   over (the bridge stamps the step and ``at_goal`` at send time, after grabbing the
   images), within a bounded wait.
+* ``map_frame`` (a ``MapFrameReport``) says where the run is in the robot's own map frame (the
+  frame of stretch_ai's localisation): the run's start, the last base pose the robot reported,
+  a move still under way, whether a runstop was seen, the bridge's step count. The agent never
+  sees it (its poses are relative to the run's start); the console keys the agent's memory of
+  the home to it across runs and drops that memory when the frame cannot be trusted
+  (``console.robot_memory``).
 
 Every failure is a ``BackendError`` with a reason code: ``disconnected`` (no state for
 more than ``state_silence_s``), ``runstopped``, ``not_homed``, ``ack_timeout``,
@@ -98,6 +104,39 @@ class MoveReport:
     observations_before_arrival: int
 
 
+@dataclass(frozen=True, slots=True)
+class MapFrameReport:
+    """Where a run is in the robot's own map frame: the frame of the bridge's ``base_pose`` and
+    ``gps``/``compass`` (stretch_ai's localisation), for a console that keeps the agent's memory of
+    the home across runs (``console.robot_memory``). The agent never sees it: its poses stay
+    relative to ``start_map``.
+
+    start_map: the run's start (fixed by ``reset``); None until then.
+    last_map: the last base pose the robot reported (its latest state message, else its latest
+        observation); None before any.
+    moving_to: a base goal sent whose arrival was not seen (the run ended during the move; the
+        bridge has no stop, so the base goes on to it); None when the base was not moving.
+    runstopped_states: how many state messages said the robot was runstopped while this
+        backend was connected (at the start, or at any moment of the run, also between two
+        steps: the link reads every state message); ``runstop_seen``: any.
+    first_step: the step the robot echoed when this backend connected (the bridge's count of
+        the actions it has handled since it started: it starts again with the bridge); None
+        before.
+    last_step: the highest step the robot has echoed; None before any.
+    """
+
+    start_map: Pose2D | None
+    last_map: Pose2D | None
+    moving_to: Pose2D | None
+    runstopped_states: int
+    first_step: int | None
+    last_step: int | None
+
+    @property
+    def runstop_seen(self) -> bool:
+        return self.runstopped_states > 0
+
+
 class StretchBackend:
     """A Stretch behind stretch_ai's ZeroMQ bridge, as an ``agent.types.Backend``.
 
@@ -131,6 +170,12 @@ class StretchBackend:
         self.moves: list[MoveReport] = []
         self.camera_offset: Pose2D | None = None  # head camera in the base frame, measured at reset
         self.last_observation_seq = 0  # the link's number of the observation last returned
+        # what ``map_frame`` reports, read from the link (kept when it closes)
+        self._last_map: Pose2D | None = None
+        self._moving_to: Pose2D | None = None
+        self._runstopped_states = 0
+        self._first_step: int | None = None
+        self._last_step: int | None = None
 
     # --- Backend protocol ----------------------------------------------------------------
 
@@ -159,6 +204,7 @@ class StretchBackend:
             raise BackendError("protocol", "the robot's messages carry no 'step': cannot acknowledge actions")
         self._next_step = echoed + 1
         self._required_step = echoed
+        self._first_step = echoed
         log.info("connected to the Stretch at %s; robot's last step %d", cfg.host, echoed)
         if cfg.send_posture:
             self._send_and_wait(lambda s: posture_message(s), cfg.posture_timeout_s, "navigation posture")
@@ -192,11 +238,18 @@ class StretchBackend:
         goal = discrete_goal(start, action)
         sent_at = time.monotonic()
         resends: list[int] = []
+        self._moving_to = goal  # until its arrival (or its failure, the base stopped) is seen
         step = self._send_and_wait(
             lambda s: move_message(goal, s), self.config.ack_timeout_s, f"{action.name}", resends
         )
         ack_wait_s = time.monotonic() - sent_at
-        watch, verdict = self._wait_for_arrival(goal, step, action.name)
+        try:
+            watch, verdict = self._wait_for_arrival(goal, step, action.name)
+        except BackendError as exc:
+            if exc.reason == "move_failed":  # the base stopped, away from the goal
+                self._moving_to = None
+            raise
+        self._moving_to = None
         assert verdict.pose is not None  # every verdict but no_arrival has a pose
         end, blocked = verdict.pose, verdict.kind == "blocked"
         self._actions_applied += 1
@@ -238,8 +291,36 @@ class StretchBackend:
             return
         self._closed = True
         if self._link is not None:
+            self._read_map_frame(self._link)  # the last word on the map frame, kept after the link
             self._link.close()
             self._link = None
+
+    @property
+    def map_frame(self) -> MapFrameReport:
+        """The run in the robot's map frame (``MapFrameReport``): read from the link while it is
+        open, as the link last saw it after ``close``. Thread-safe."""
+        link = self._link
+        if link is not None:
+            self._read_map_frame(link)
+        return MapFrameReport(
+            start_map=self._start_world,
+            last_map=self._last_map,
+            moving_to=self._moving_to,
+            runstopped_states=self._runstopped_states,
+            first_step=self._first_step,
+            last_step=self._last_step,
+        )
+
+    def _read_map_frame(self, link: BridgeLink) -> None:
+        state, obs = link.state, link.observation
+        if state is not None:
+            self._last_map = state.base_world
+        elif obs is not None:
+            self._last_map = obs.base_world
+        self._runstopped_states = max(self._runstopped_states, link.runstopped_states)
+        echoed = link.echoed_step
+        if echoed is not None:
+            self._last_step = echoed
 
     # --- pieces ------------------------------------------------------------------------
 

@@ -39,7 +39,10 @@ observation rate, like the bridge's publisher (its compression sets its pace).
 Knobs for tests (``FakeKnobs``, changeable while running): runstop, not homed, dropped
 acknowledgements, silence (publish nothing), slow moves (speeds), whether state
 messages carry ``step``, faithful observation order, non-blocking navigation, a motion
-that never arrives, whether messages carry ``at_goal``.
+that never arrives, whether messages carry ``at_goal``. Between runs a test may move the base
+by hand (``push_base``) or start the robot's localisation again where the base stands
+(``reset_localisation``: the reported poses are then in a new map frame, as after a SLAM
+restart).
 """
 
 from __future__ import annotations
@@ -96,7 +99,8 @@ class FakeKnobs:
 
 @dataclass(frozen=True, slots=True)
 class _Snapshot:
-    pose: Pose2D
+    pose: Pose2D  # in the world (what the camera sees from)
+    map_pose: Pose2D  # as the robot's localisation reports it, in its map frame
     tilt_rad: float
     echo_step: int
     at_goal: bool
@@ -131,6 +135,7 @@ class FakeStretch:
         self._state_period_s = 1.0 / state_hz
         self._lock = threading.Lock()
         self._pose = world.start_world
+        self._map_world: Pose2D | None = None  # the map frame in the world; None: the world frame itself
         self._tilt_rad = math.radians(20.0)
         self._tilt_goal_rad = self._tilt_rad
         self._handled_step = start_step
@@ -236,10 +241,37 @@ class FakeStretch:
         with self._lock:
             return self._echo_step
 
+    def push_base(self, pose_world: Pose2D) -> None:
+        """The base is moved by hand (pushed while runstopped, or carried): it stands at
+        ``pose_world`` at once, without a command, and the localisation follows it (the
+        reported pose is the new one, in the same map frame)."""
+        if self.world.collides(pose_world.x_m, pose_world.y_m):
+            raise ValueError(f"the base cannot stand at {pose_world}")
+        with self._lock:
+            self._motion_gen += 1  # a motion under way ends here
+            self._pose = pose_world
+            self._at_goal = True
+
+    def reset_localisation(self) -> None:
+        """The robot's localisation starts again where the base stands (stretch_ai's SLAM
+        restarted, as after a power cycle): the reported pose becomes the origin of a new map
+        frame; the base does not move. Absolute goals are read in the new frame from then on."""
+        with self._lock:
+            self._map_world = self._pose
+
+    def _map_pose(self, pose_world: Pose2D) -> Pose2D:
+        return pose_world if self._map_world is None else pose_world.relative_to(self._map_world)
+
     def _snapshot(self) -> _Snapshot:
         with self._lock:
             return _Snapshot(
-                self._pose, self._tilt_rad, self._echo_step, self._at_goal, self._last_motion_failed, self._control_mode
+                self._pose,
+                self._map_pose(self._pose),
+                self._tilt_rad,
+                self._echo_step,
+                self._at_goal,
+                self._last_motion_failed,
+                self._control_mode,
             )
 
     # --- publishers --------------------------------------------------------------------
@@ -254,7 +286,7 @@ class FakeStretch:
                     continue
                 snap = self._snapshot()
                 msg: dict[str, Any] = {
-                    "base_pose": np.array(snap.pose.as_tuple()),
+                    "base_pose": np.array(snap.map_pose.as_tuple()),
                     "ee_pose": np.eye(4),
                     "joint_positions": np.zeros(11),
                     "joint_velocities": np.zeros(11),
@@ -313,12 +345,12 @@ class FakeStretch:
             "depth": depth_enc,
             "camera_K": self.world.intrinsics.K.astype(np.float32),
             "camera_pose": encoding.make_camera_pose(
-                read.pose.x_m, read.pose.y_m, read.pose.yaw_rad, self.world.camera_height_m, read.tilt_rad
+                read.map_pose.x_m, read.map_pose.y_m, read.map_pose.yaw_rad, self.world.camera_height_m, read.tilt_rad
             ),
             "ee_pose": np.eye(4),
             "joint": np.zeros(11),
-            "gps": np.array([read.pose.x_m, read.pose.y_m]),
-            "compass": np.array([read.pose.yaw_rad]),
+            "gps": np.array([read.map_pose.x_m, read.map_pose.y_m]),
+            "compass": np.array([read.map_pose.yaw_rad]),
             # the bridge's swapped meanings: width, height = rgb.shape[:2]
             "rgb_width": shape[0],
             "rgb_height": shape[1],
@@ -413,6 +445,10 @@ class FakeStretch:
             goal = Pose2D(*xyt)
             if relative:
                 goal = self.pose_world.compose(goal)
+            else:
+                with self._lock:  # an absolute goal is in the robot's map frame
+                    if self._map_world is not None:
+                        goal = self._map_world.compose(goal)
             with self._lock:
                 mode = self._control_mode
             if mode != "navigation":

@@ -82,6 +82,7 @@ class BridgeLink:
         # the base's motion over (at_goal, or last_motion_failed); both are read at send time.
         self._obs_arrival_marks: collections.deque[tuple[int, int]] = collections.deque(maxlen=256)
         self._counts = {"state": 0, "obs": 0, "refused": 0, "malformed": 0}
+        self._runstopped_states = 0  # state messages that said the robot was runstopped
         self._last_problem: str | None = None
         self._stop = threading.Event()
         self._thread_error: str | None = None
@@ -150,6 +151,8 @@ class BridgeLink:
         with self._cond:
             if isinstance(parsed, RobotState):
                 self._state = parsed
+                if parsed.is_runstopped:
+                    self._runstopped_states += 1
             else:
                 self._obs_seq += 1
                 parsed = dataclasses.replace(parsed, seq=self._obs_seq)
@@ -215,6 +218,14 @@ class BridgeLink:
                 if echoed >= step:
                     return seq
             return None
+
+    @property
+    def runstopped_states(self) -> int:
+        """State messages received so far that said the robot was runstopped. Every state message
+        is read as it comes (~30 Hz), so a runstop pressed and released between two of the
+        backend's own checks is counted too."""
+        with self._cond:
+            return self._runstopped_states
 
     @property
     def counts(self) -> dict[str, int]:
