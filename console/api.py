@@ -14,7 +14,8 @@
     GET  /api/runs/{id}/artifacts/{name}   goal photo, trajectory JSON, map PNG, run video
     GET  /api/runs/{id}/replay     a finished run step by step (console.routes.replay)
     /api/calibration/...           a deployment's tau from the operator's own photos
-    GET  /api/memory/{home}        what the agent remembers of a simulator home (map.png: its map)
+    GET  /api/memory               the homes with a memory (simulator homes, the robot's home)
+    GET  /api/memory/{home}        what the agent remembers of a home (map.png: its map)
     DELETE /api/memory/{home}      forget a home
 
 Routers (``console.routes``) receive the console through ``Depends`` (``console.deps``);

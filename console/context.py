@@ -7,7 +7,8 @@ Data directory layout (everything the console writes is under it)::
     <data>/runs/<run id>/         per-run artifacts (console.artifacts)
     <data>/sim/                   simulator homes' gallery cache (console.sim_provider)
     <data>/calibration/<deployment>.json   tau from the operator's photos (console.calibration)
-    <data>/memory/<home>.npz      the agent's memory of each simulator home (console.home_memory)
+    <data>/memory/<home>.npz      the agent's memory of each home: simulator homes, the robot's
+                                  (console.home_memory, console.robot_memory)
     <data>/console.lock           held by the console using this directory (console.datalock)
 """
 

@@ -1,9 +1,10 @@
 """The console's memory of each home (issue 31; docs/architecture.md section 11).
 
-Runs in the same simulator home share one ``agent.memory.HomeMemory`` (the map, keyframes and
-earlier goals): the second request in a home starts from what the first saw. A home's memory is
-its own, keyed by the home (``home-<seed>``: a catalogue home; ``scene-<seed>``: an episode's full
-home), and never given to a run in another home.
+Runs in the same home share one ``agent.memory.HomeMemory`` (the map, keyframes and earlier
+goals): the second request in a home starts from what the first saw. A home's memory is its own,
+keyed by the home (``home-<seed>``: a catalogue home of the simulator; ``scene-<seed>``: an
+episode's full home; ``robot-<10 hex digits>``: the Stretch the console drives, in its own map
+frame, ``robot_key``), and never given to a run in another home.
 
 **The frame.** A memory holds poses and points in one frame, the pose frame of the first run
 that filled it (its *anchor*, the world pose of that run's start). Each console simulator run
@@ -11,9 +12,13 @@ starts at its own start pose and its backend reports poses relative to it, so a 
 backend is put in the memory's frame with ``agent.memory.InHomeFrame(backend, origin)``, origin
 being this run's start in the anchor's frame (``start_world.relative_to(anchor_world)``). In the
 simulator the console knows both true start poses: for the warm home this stands for the
-odometry of a robot that keeps its map between requests. The robot backend exposes no map frame
-(``robot.backend.StretchBackend`` reports poses from its own start), so runs on the robot get
-no memory: a memory kept across them would put every remembered point in the wrong place.
+odometry of a robot that keeps its map between requests. On the robot the start poses are the
+robot's own, in its map frame (``robot.backend.StretchBackend.map_frame``), and the memory is
+dropped whenever that frame cannot be trusted: a runstop, the base moved between runs, the
+robot's bridge started again (``console.robot_memory``, which also says what it cannot see). A
+robot home's file also keeps where the last run left the base (``RobotFrame``) and why the
+memory was last dropped (``DropNote``), as optional members of the JSON; the format is unchanged
+(a reader of format 2 ignores them, a simulator home's file has none).
 
 **On disk.** ``<data>/memory/<home>.npz``, written when a run in the home ends (atomically:
 a temporary file, then a rename), read lazily the first time the home is asked for. No pickle:
@@ -39,6 +44,7 @@ for each, and starts a request for one again from that photo (``POST /api/runs``
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import logging
@@ -64,7 +70,7 @@ logger = logging.getLogger(__name__)
 FORMAT_VERSION = 2
 READABLE_FORMATS = (1, 2)  # 1: the goals have no run ids
 MARK_MERGE_M = 0.5  # known objects closer than this are one mark on the map, numbered with each request
-HOME_KEY = re.compile(r"^(home|scene)-\d{1,9}$")
+HOME_KEY = re.compile(r"^((home|scene)-\d{1,9}|robot-[0-9a-f]{10})$")
 
 
 class MemoryInUse(RuntimeError):
@@ -81,6 +87,59 @@ def home_key(kind: str, seed: int) -> str:
     if not HOME_KEY.match(key):
         raise ValueError(f"no home key {key!r}")
     return key
+
+
+def robot_key(host: str, obs_port: int, action_port: int, state_port: int) -> str:
+    """The memory's key of the robot the console drives at this address: ``robot-`` and 10 hex
+    digits of a hash of the host and the bridge's ports (stable across restarts, safe in a file
+    name and a URL; a robot at another address is another home)."""
+    digest = hashlib.sha256(f"{host}|{int(obs_port)}|{int(action_port)}|{int(state_port)}".encode()).hexdigest()
+    return f"robot-{digest[:10]}"
+
+
+@dataclass(frozen=True, slots=True)
+class RobotFrame:
+    """Where the last run in a robot home left the base, in the robot's map frame, and the
+    bridge's step count then (``console.robot_memory`` compares the next run's start with it).
+
+    end_map: the base pose the robot last reported (or the goal of a move still under way).
+    last_step: the highest step the robot had echoed (None: it did not say).
+    run_id: the console run that left it there.
+    """
+
+    end_map: Pose2D
+    last_step: int | None
+    run_id: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"end_map": _pose(self.end_map), "last_step": self.last_step, "run_id": self.run_id}
+
+    @staticmethod
+    def from_json(d: Any) -> RobotFrame:
+        step = d["last_step"]
+        return RobotFrame(_unpose(d["end_map"]), None if step is None else int(step), _run_id_or_none(d["run_id"]))
+
+
+@dataclass(frozen=True, slots=True)
+class DropNote:
+    """Why a home's memory was last dropped (not forgotten by the operator), when, and in which run."""
+
+    reason: str
+    at_s: float
+    run_id: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"reason": self.reason, "at_s": self.at_s, "run_id": self.run_id}
+
+    @staticmethod
+    def from_json(d: Any) -> DropNote:
+        return DropNote(str(d["reason"]), float(d["at_s"]), _run_id_or_none(d["run_id"]))
+
+
+def _run_id_or_none(value: Any) -> str | None:
+    if value is not None and not (isinstance(value, str) and valid_run_id(value)):
+        raise MemoryFileError(f"{str(value)[:40]!r} is not a run id")
+    return value
 
 
 # --- the file format ---------------------------------------------------------------------
@@ -157,8 +216,14 @@ def _unpose(v: Any) -> Pose2D:
     return Pose2D(x, y, yaw)
 
 
-def memory_bytes(memory: HomeMemory, anchor_world: Pose2D | None) -> bytes:
-    """The memory as one ``.npz`` archive (see the module docstring)."""
+def memory_bytes(
+    memory: HomeMemory,
+    anchor_world: Pose2D | None,
+    robot_frame: RobotFrame | None = None,
+    dropped: DropNote | None = None,
+) -> bytes:
+    """The memory as one ``.npz`` archive (see the module docstring); a robot home's ``robot_frame``
+    and ``dropped`` note are written only when there are some."""
     arrays = _Arrays()
     grid = None
     if memory.grid is not None:
@@ -195,6 +260,10 @@ def memory_bytes(memory: HomeMemory, anchor_world: Pose2D | None) -> bytes:
         "grid": grid,
         "keyframes": keyframes,
     }
+    if robot_frame is not None:
+        meta["robot_frame"] = robot_frame.to_json()
+    if dropped is not None:
+        meta["dropped"] = dropped.to_json()
     text = json.dumps(meta).encode()
     buf = io.BytesIO()
     np.savez(buf, meta=np.frombuffer(text, np.uint8), **arrays.arrays)  # type: ignore[arg-type]
@@ -207,6 +276,23 @@ def memory_from_bytes(
     """A memory and its anchor read back; ``MemoryFileError`` when the bytes are not one written
     by ``memory_bytes`` in a format this version reads (``READABLE_FORMATS``), for this ``mapping``
     config and ``matcher``."""
+    file = memory_file_from_bytes(data, config, mapping, matcher)
+    return file.memory, file.anchor_world
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MemoryFile:
+    """What a memory file holds: the memory, its anchor and, for a robot home, the frame record
+    and the last drop."""
+
+    memory: HomeMemory
+    anchor_world: Pose2D | None
+    robot_frame: RobotFrame | None = None
+    dropped: DropNote | None = None
+
+
+def memory_file_from_bytes(data: bytes, config: MemoryConfig, mapping: MappingConfig, matcher: str) -> MemoryFile:
+    """``memory_from_bytes`` with the optional members too (``MemoryFile``)."""
     from agent.mapping import LAYER_DTYPES, GridMap, MapLayers
     from agent.memory import HomeMemory, Keyframe
 
@@ -264,11 +350,13 @@ def memory_from_bytes(
             )
         memory.restore(keyframes, int(meta["next_id"]))
         anchor = None if meta["anchor_world"] is None else _unpose(meta["anchor_world"])
+        robot_frame = None if meta.get("robot_frame") is None else RobotFrame.from_json(meta["robot_frame"])
+        dropped = None if meta.get("dropped") is None else DropNote.from_json(meta["dropped"])
     except MemoryFileError:
         raise
     except Exception as exc:  # any malformed member or field: the file is not one this module wrote
         raise MemoryFileError(f"malformed memory ({type(exc).__name__}: {exc})") from exc
-    return memory, anchor
+    return MemoryFile(memory, anchor, robot_frame, dropped)
 
 
 def _goal(g: dict[str, Any]) -> GoalSummary:
@@ -309,7 +397,8 @@ def known_objects(goals: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 @dataclass(eq=False)
 class HomeSlot:
-    """One home's memory and the world pose of its frame (None until a run fills it)."""
+    """One home's memory and the world pose of its frame (None until a run fills it); for a robot
+    home, where the last run left the base (``robot_frame``) and the last drop (``dropped``)."""
 
     key: str
     memory: HomeMemory
@@ -318,6 +407,12 @@ class HomeSlot:
     lock: threading.Lock = field(default_factory=threading.Lock)
     run_id: str | None = None  # the console run using the memory (module docstring, "The requests")
     run_goals_from: int = 0  # the goals it begins: those from this goal index on
+    robot_frame: RobotFrame | None = None
+    dropped: DropNote | None = None
+
+    def is_empty(self) -> bool:
+        """Nothing remembered: no map, no keyframe, no goal."""
+        return self.memory.grid is None and len(self.memory) == 0 and not self.memory.goals
 
     def run_of(self, goal: GoalSummary) -> str | None:
         """The run that asked for a goal: stamped, or the run using the memory now."""
@@ -364,9 +459,9 @@ class HomeMemories:
                 slot = HomeSlot(key, HomeMemory(self.config))
                 if path.is_file():
                     try:
-                        slot.memory, slot.anchor_world = memory_from_bytes(
-                            path.read_bytes(), self.config, self.mapping, self.matcher
-                        )
+                        file = memory_file_from_bytes(path.read_bytes(), self.config, self.mapping, self.matcher)
+                        slot.memory, slot.anchor_world = file.memory, file.anchor_world
+                        slot.robot_frame, slot.dropped = file.robot_frame, file.dropped
                         logger.info("memory of %s read from %s (%d keyframes)", key, path, len(slot.memory))
                     except (OSError, MemoryFileError) as exc:
                         aside = path.with_name(f"{key}.unreadable-{time.strftime('%Y%m%d-%H%M%S')}.npz")
@@ -411,11 +506,26 @@ class HomeMemories:
                 slot.in_use = False
                 slot.run_id = None
 
+    def drop(self, slot: HomeSlot, reason: str, run_id: str | None = None) -> None:
+        """Drop a home's memory because its frame can no longer be trusted (``console.robot_memory``),
+        while a run holds it (``acquire``): emptied in place, as Forget empties a home (the run's
+        agent, which holds this memory, begins from nothing), its file removed, and ``reason``
+        kept as the home's last drop (``DropNote``) and logged."""
+        path = self.path(slot.key)
+        with slot.lock:
+            slot.memory.clear()
+            slot.anchor_world = None
+            slot.robot_frame = None
+            slot.dropped = DropNote(reason, time.time(), run_id)
+            slot.run_goals_from = slot.memory.goal_index + 1
+        path.unlink(missing_ok=True)
+        logger.warning("memory of %s dropped: %s", slot.key, reason)
+
     def save(self, slot: HomeSlot) -> None:
         path = self.path(slot.key)
         try:
             with slot.lock:
-                data = memory_bytes(slot.memory, slot.anchor_world)
+                data = memory_bytes(slot.memory, slot.anchor_world, slot.robot_frame, slot.dropped)
             self.dir.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f".{slot.key}.tmp")
             tmp.write_bytes(data)
@@ -455,12 +565,14 @@ class HomeMemories:
         goals = {g.goal_index: g for g in slot.memory.goals}  # read after: it holds every goal of ``s``
         for out in s["goals"]:
             out["run_id"] = slot.run_of(goals[out["goal_index"]])
+        dropped = slot.dropped
         return {
             "home": key,
             "in_use": slot.in_use,
             "saved": self.path(key).is_file(),
             **s,
             "objects": known_objects(s["goals"]),
+            "dropped": None if dropped is None else dropped.to_json(),
         }
 
     def remembers(self, key: str, run_id: str) -> bool:

@@ -21,7 +21,10 @@ runstop button is the emergency stop.
 
 How a run ended is the agent's own account when the agent stopped (its last record's
 mode and reason, e.g. ``exhausted``), for every backend; the backend's session adds
-whether and how the run is scored.
+whether and how the run is scored. What the session tells the operator while the run goes on
+(``ResolvedRun.notify``: the robot's memory dropped) is logged, published as a ``log`` event
+of the run at once and added to the run's outcome; the session's configuration is stored again
+when the run ends (a robot run's memory frame is known only after its reset).
 """
 
 from __future__ import annotations
@@ -149,10 +152,16 @@ class RunManager:
             )
             timings["record_s"] = time.perf_counter() - t0  # the upload's file and the run's row
             stop = threading.Event()
-            resolved = replace(resolved, run_id=run_id)  # the home's memory notes it with its goal
+            notes: list[str] = []
+
+            def notify(text: str) -> None:
+                self._note(run_id, notes, text)
+
+            # the home's memory notes the run id with its goal
+            resolved = replace(resolved, run_id=run_id, notify=notify)
             thread = threading.Thread(
                 target=self._work,
-                args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s, timings),
+                args=(run_id, provider, resolved, goal.rgb, writer, stop, received_s, timings, notes),
                 name=f"run-{run_id}",
                 daemon=True,
             )
@@ -215,6 +224,7 @@ class RunManager:
         stop: threading.Event,
         received_s: float,
         timings: dict[str, Any],
+        notes: list[str] | None = None,
     ) -> None:
         started_s = time.time()
         # upload to the first action, in consecutive parts that add up (bench_console prints them)
@@ -300,6 +310,8 @@ class RunManager:
                     session.close()
                 except Exception:  # closing must not hide the run's own outcome
                     logger.exception("run %s: closing the backend failed", run_id)
+        if notes:  # what the session told the operator during the run (``ResolvedRun.notify``)
+            outcome = Outcome(outcome.outcome, "; ".join([outcome.detail, *notes]), outcome.metrics)
         t0 = time.perf_counter()
         try:
             summary = {"run_id": run_id, "status": status, "outcome": outcome.outcome, "metrics": outcome.metrics}
@@ -313,6 +325,8 @@ class RunManager:
             timings["agent_mean_ms"] = {k: v / n_steps for k, v in part_sums.items()}
         ended_s = time.time()
         timings["total_s"] = ended_s - received_s
+        if session is not None:  # completed during the run (a robot run's memory origin)
+            self.store.update_run(run_id, agent_config=dict(session.agent_config))
         self.store.update_run(
             run_id,
             status=status,
@@ -347,6 +361,13 @@ class RunManager:
         with self._lock:
             if self._active is not None and self._active.run_id == run_id:
                 self._active = None
+
+    def _note(self, run_id: str, notes: list[str], text: str) -> None:
+        """A session's word to the operator during its run: logged, kept for the run's outcome and
+        published at once as a ``log`` event of the run."""
+        notes.append(text)
+        logger.warning("run %s: %s", run_id, text)
+        self.hub.publish("log", run_id, {"message": f"run {run_id}: {text}", "source": "run"})
 
     def _stop_reason(self, run_id: str) -> str:
         with self._lock:

@@ -20,7 +20,7 @@ class RunForm:
     gallery_item: str | None = None
     target_instance: str | None = None
     max_steps: int | None = None
-    memory: str | None = None  # simulator: "on" (default) or "off" (console.home_memory)
+    memory: str | None = None  # "on" (default) or "off": from the home's memory or not (console.home_memory)
 
     @staticmethod
     def of(**values: Any) -> RunForm:
@@ -59,8 +59,13 @@ class SimRunOptions:
 
 @dataclass(frozen=True, slots=True)
 class StretchRunOptions:
+    """A run on the Stretch at ``host``; ``home``: the robot's home memory key (``robot-<hash>``;
+    None: the console keeps no memory for the robot); ``memory`` as for the simulator."""
+
     host: str
     max_steps: int
+    home: str | None = None
+    memory: str | None = None  # "off": this run neither starts from nor adds to the robot's memory
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        return {k: v for k, v in asdict(self).items() if v is not None}

@@ -50,10 +50,12 @@ def build_providers(args: argparse.Namespace, data_dir: Path) -> dict[str, Backe
         from console.agents import Deployment
         from console.stretch_provider import StretchProvider
 
-        # the robot's tau: the operator's own calibration in the data directory, when made
+        # the robot's tau: the operator's own calibration in the data directory, when made; the
+        # agent's memory of the robot's home beside the simulator homes' (console.robot_memory)
         providers["stretch"] = StretchProvider(
             stretch_host,
-            agent_deployment=Deployment("stretch", data_dir / "calibration"),  # type: ignore[arg-type]
+            agent_deployment=Deployment("stretch", data_dir / "calibration"),
+            memory_dir=data_dir / "memory",
         )
         logger.info("Stretch backend offered (robot at %s)", stretch_host)
     return providers

@@ -9,14 +9,17 @@ returning a ``RunSession``. The console owns the loop that joins them
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from agent.types import Action, Agent, AgentRecord, Backend, Intrinsics, Pose2D
 from console.options import RunForm, RunOptions
+
+if TYPE_CHECKING:
+    from console.home_memory import HomeMemories
 
 
 class OptionsError(ValueError):
@@ -36,12 +39,16 @@ class ResolvedRun:
              a known target means the run is scored.
     run_id:  the run's id, given by the run manager before the backend is opened (a home's
              memory notes which run asked for each of its goals: ``console.home_memory``).
+    notify:  given by the run manager with the run id: what the session has to tell the operator
+             while the run goes on (the robot's memory dropped: ``console.robot_memory``) is
+             logged, published as a ``log`` event of the run and added to its outcome.
     """
 
     backend: str
     spec: RunOptions
     target: Mapping[str, Any] | None
     run_id: str | None = None
+    notify: Callable[[str], None] | None = field(default=None, compare=False, repr=False)
 
     @property
     def options(self) -> dict[str, Any]:
@@ -63,6 +70,15 @@ class Outcome:
     outcome: str
     detail: str
     metrics: Mapping[str, Any] | None = None
+
+
+def check_memory_option(value: str | None) -> str | None:
+    """The ``memory`` option of a backend with a home memory: None (default, "on") or "off"."""
+    if value is None or value == "on":
+        return None
+    if value == "off":
+        return "off"
+    raise OptionsError(f"memory must be 'on' or 'off', not {value!r}")
 
 
 class RunSession(Protocol):
@@ -97,6 +113,30 @@ class BackendProvider(Protocol):
         ...
 
     def open(self, resolved: ResolvedRun, goal_rgb: np.ndarray) -> RunSession: ...
+
+
+@runtime_checkable
+class MemoryProvider(Protocol):
+    """A backend choice whose runs share the agent's memory of their home (``console.home_memory``):
+    the simulator's homes, the robot's one home. ``routes/memory.py`` shows and forgets them and
+    starts a known object's request again."""
+
+    name: str
+    label: str
+
+    def memory_keys(self) -> list[str]:
+        """The homes that can have a memory now (empty: none)."""
+        ...
+
+    def memories(self) -> HomeMemories: ...
+
+    def run_memory_key(self, spec: RunOptions) -> str | None:
+        """The home whose memory a run with these options uses; None: none (memory off)."""
+        ...
+
+    def stored_memory_key(self, options: Mapping[str, Any]) -> str | None:
+        """The home of a stored run of this backend, from its options; None: none."""
+        ...
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -36,9 +36,9 @@ import numpy as np
 
 from agent.types import MAX_STEPS
 from console.home_memory import HomeMemories, HomeSlot, home_key
-from console.options import RunForm, SimRunOptions
+from console.options import RunForm, RunOptions, SimRunOptions
 from console.photos import hamming
-from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession
+from console.session import OptionsError, ProviderUnavailable, ResolvedRun, RunSession, check_memory_option
 from console.sim_catalog import GalleryItem, HomeEntry, Start
 from sim.realism import Realism
 
@@ -287,7 +287,7 @@ class SimProvider:
                     "would overlap a wall or furniture there, or it is outside the home"
                 )
         max_steps = _check_max_steps(form.max_steps)
-        memory = _check_memory(form.memory)
+        memory = check_memory_option(form.memory)
 
         target: dict[str, Any] | None = None
         if form.gallery_item:
@@ -339,7 +339,7 @@ class SimProvider:
             home_seed=e.scene_seed,
             start_pose_world=tuple(e.start_pose_world.as_tuple()),
             max_steps=_check_max_steps(form.max_steps),
-            memory=_check_memory(form.memory),
+            memory=check_memory_option(form.memory),
         )
         target = {
             "instance_id": e.goal_instance_id,
@@ -396,6 +396,12 @@ class SimProvider:
     def memory_key(spec: SimRunOptions) -> str:
         """The home a run is in: ``scene-<seed>`` for an episode (the full-size home), else ``home-<seed>``."""
         return home_key("scene" if spec.episode is not None else "home", spec.home_seed)
+
+    def run_memory_key(self, spec: RunOptions) -> str | None:
+        """``memory_key`` of a simulator run's options; None with memory off."""
+        if not isinstance(spec, SimRunOptions) or spec.memory == "off":
+            return None
+        return self.memory_key(spec)
 
     @staticmethod
     def stored_memory_key(options: Mapping[str, Any]) -> str | None:
@@ -517,15 +523,6 @@ def _parse_start(home: HomeEntry, text: str | None) -> Start:
 def _shown_m(v: float, digits: int = 2) -> str:
     """A number as a message shows it: 1e308 as "1e+308", not its 309 digits (issue 33)."""
     return f"{v:.{digits}f}" if abs(v) < 1e6 else f"{v:.3g}"
-
-
-def _check_memory(value: str | None) -> str | None:
-    """The ``memory`` option: None (default, "on") or "off"."""
-    if value is None or value == "on":
-        return None
-    if value == "off":
-        return "off"
-    raise OptionsError(f"memory must be 'on' or 'off', not {value!r}")
 
 
 def _check_max_steps(n: int | None) -> int:

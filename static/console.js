@@ -50,16 +50,24 @@
   };
   fillHomes();
 
-  // The memory of the selected simulator home (GET /api/memory/{home}): its map (each known object
-  // numbered with its request), the known objects (each request that ended with a candidate not
-  // rejected) with the goal photo they were asked with and "Find it again" (a run from memory with
-  // that photo: POST /api/runs with goal_from_run), and forgetting it.
+  // The memory of the selected simulator home, or of the robot's home when the robot is chosen
+  // (GET /api/memory/{home}): its map (each known object numbered with its request), the known
+  // objects (each request that ended with a candidate not rejected) with the goal photo they were
+  // asked with and "Find it again" (a run from memory with that photo: POST /api/runs with
+  // goal_from_run), why it was last dropped (the robot's, when its map frame was lost), and
+  // forgetting it.
   let memoryHome = null, memoryInUse = false;
+  const memoryHomes = await imgnav.getJSON("/api/memory").then((m) => m.backends || {}).catch(() => ({}));
   const homeChosen = () => {
-    const sel = document.getElementById("sim-home");
     const backend = document.getElementById("backend");
-    return backend && backend.value === "sim" && sel && !sel.disabled ? sel.value : null;
+    if (!backend) return null;
+    if (backend.value !== "sim") return (memoryHomes[backend.value] || [])[0] || null;  // the robot's one home
+    const sel = document.getElementById("sim-home");
+    return sel && !sel.disabled ? sel.value : null;
   };
+  const droppedWords = (d) => d
+    ? ` Dropped ${new Date(d.at_s * 1000).toLocaleString()}${d.run_id ? ` (run ${d.run_id})` : ""}: ${d.reason}.`
+    : "";
   async function refreshMemory() {
     const home = homeChosen();
     memoryHome = home;
@@ -72,10 +80,11 @@
     if (memoryHome !== home) return;  // another home was chosen meanwhile
     memoryError("");
     const requests = m.goals.length;
-    $("memory-words").textContent = requests
+    $("memory-words").textContent = (requests
       ? `${requests} ${requests === 1 ? "request" : "requests"} in this home; ${m.keyframes} remembered views `
         + `(${fmt((m.keyframe_bytes + m.map_bytes) / 1e6, 1)} MB).${m.in_use ? " A run is adding to it now." : ""}`
-      : "Nothing yet: the next run here starts from nothing, and later runs start from what it saw.";
+      : "Nothing yet: the next run here starts from nothing, and later runs start from what it saw.")
+      + droppedWords(m.dropped);
     $("memory-map").hidden = !requests;
     if (requests) $("memory-map").src = `${m.map_url}?t=${Date.now()}`;
     memoryInUse = m.in_use;
@@ -91,7 +100,7 @@
       const again = el("button", {
         type: "button", class: "memory-again", "data-run": o.goal_url ? o.run_id : "",  // no photo: nothing to ask with
         "aria-label": `Find it again: request ${o.request}`,
-        title: "a new run in this home, from memory, with this request's goal photo (from the start chosen above)",
+        title: "a new run in this home, from memory, with this request's goal photo (from the start chosen above; the robot: from where it stands)",
         text: "Find it again",
       });
       again.disabled = !again.dataset.run || !!activeRun || m.in_use;
@@ -108,7 +117,7 @@
     const form = new FormData();
     backendForm.fill(form);  // the home and the start chosen above
     form.delete("gallery_item");  // the photo is the request's own
-    form.set("home", home);
+    if (form.get("backend") === "sim") form.set("home", home);  // the robot's home is where it stands
     form.append("goal_from_run", o.run_id);
     await startRun(form, `request ${o.request} of ${home} asked again, from memory`, memoryError);
     setFindAgain();
@@ -295,7 +304,12 @@
 
   let refreshTimer = null;
   imgnav.follow("/api/events", (ev) => {
-    if (ev.kind === "log") { log(ev.message); if (ev.ready) backendForm.load().then(fillHomes).then(refreshMemory); return; }
+    if (ev.kind === "log") {
+      log(ev.message);
+      if (ev.ready) backendForm.load().then(fillHomes).then(refreshMemory);
+      else if (ev.run_id) refreshMemory().catch(() => {});  // a run's word (its home's memory dropped)
+      return;
+    }
     if (ev.kind === "step") {  // keep the active run's row current without reloading the list
       const row = $("runs").querySelector(`tr[data-run="${ev.run_id}"]`);
       if (row) row.children[2].textContent = String(ev.step + 1);

@@ -1,5 +1,7 @@
-"""The agent's memory of each simulator home (issue 31; ``console.home_memory``): what it holds
-(its known objects with the goal photo each was asked with), the remembered map as a picture,
+"""The agent's memory of each home (issue 31; ``console.home_memory``): the simulator's homes and
+the robot's home (``console.robot_memory``), each from the backend choice that keeps it
+(``console.session.MemoryProvider``): what it holds (its known objects with the goal photo each
+was asked with, and for the robot why it was last dropped), the remembered map as a picture,
 and forgetting a home. Forgetting goes through the same checks as every other change the console
 accepts: the Host check and the same-origin check of every unsafe method (``console.security``),
 and the token when the console has one (``TokenDep``).
@@ -21,24 +23,33 @@ from console.context import Console
 from console.deps import ConsoleDep, TokenDep, error
 from console.home_memory import HomeMemories, MemoryInUse
 from console.jsonio import json_safe
-from console.options import RunForm, SimRunOptions
-from console.routes.sim import _sim
-from console.session import BackendProvider, ResolvedRun
-from console.sim_provider import SimProvider
+from console.options import RunForm
+from console.session import BackendProvider, MemoryProvider, ResolvedRun
 
 router = APIRouter(prefix="/api/memory", tags=["memory"])
 
 
+def _memory_keys(console: Console) -> dict[str, list[str]]:
+    """Each backend choice that keeps a memory, with its homes."""
+    return {
+        name: p.memory_keys()
+        for name, p in console.providers.items()
+        if isinstance(p, MemoryProvider) and p.memory_keys()
+    }
+
+
 def _memories(console: Console, home: str) -> HomeMemories:
-    provider = _sim(console)
-    if home not in provider.memory_keys():
-        raise error(404, "unknown_home", f"no home {home!r}; homes are {provider.memory_keys()}")
-    return provider.memories()
+    for provider in console.providers.values():
+        if isinstance(provider, MemoryProvider) and home in provider.memory_keys():
+            return provider.memories()
+    homes = [k for keys in _memory_keys(console).values() for k in keys]
+    raise error(404, "unknown_home", f"no home {home[:40]!r}; homes are {homes}")
 
 
-@router.get("", summary="The homes that can have a memory")
+@router.get("", summary="The homes that can have a memory (and each backend's)")
 def list_homes(console: ConsoleDep) -> dict[str, Any]:
-    return {"homes": _sim(console).memory_keys()}
+    by_backend = _memory_keys(console)
+    return {"homes": [k for keys in by_backend.values() for k in keys], "backends": by_backend}
 
 
 @router.get("/{home}", summary="What the agent remembers of a home: keyframes, bytes, known objects")
@@ -88,8 +99,8 @@ def goal_from_run_photo(
     agent was given it), after the checks that need no resolved options; a 422 otherwise."""
     if photo_given:
         raise error(422, "two_goals", "send a goal photo (goal_image) or goal_from_run, not both")
-    if not isinstance(provider, SimProvider):
-        raise error(422, "no_memory", f"goal_from_run: only a simulator home has a memory, not the {provider.label}")
+    if not isinstance(provider, MemoryProvider) or not provider.memory_keys():
+        raise error(422, "no_memory", f"goal_from_run: the {provider.label} keeps no memory of its home")
     if form.memory == "off":
         raise error(422, "memory_off", "goal_from_run asks for a remembered object: the run needs memory on")
     if form.gallery_item is not None:
@@ -106,8 +117,9 @@ def goal_from_run_photo(
 def check_goal_from_run(provider: BackendProvider, resolved: ResolvedRun, row: dict[str, Any]) -> None:
     """A run may take the goal photo of ``row``'s run only in that run's home, and only while the
     home's memory remembers that run's request (a 422 otherwise)."""
-    assert isinstance(provider, SimProvider) and isinstance(resolved.spec, SimRunOptions)  # goal_from_run_photo
-    key = provider.memory_key(resolved.spec)
+    assert isinstance(provider, MemoryProvider)  # goal_from_run_photo
+    key = provider.run_memory_key(resolved.spec)
+    assert key is not None  # memory off is refused by goal_from_run_photo
     source = provider.stored_memory_key(row["options"]) if row["backend"] == provider.name else None
     run_id = row["id"]
     if source != key:

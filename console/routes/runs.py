@@ -99,15 +99,16 @@ async def start_run(
     memory: Annotated[
         str | None,
         Form(
-            description="simulator: 'on' (default) starts from what the robot remembers of the home and adds to "
-            "it; 'off' starts from nothing and leaves the home's memory as it was"
+            description="simulator and Stretch: 'on' (default) starts from what the robot remembers of the home "
+            "and adds to it; 'off' starts from nothing and leaves the home's memory as it was"
         ),
     ] = None,
     goal_from_run: Annotated[
         str | None,
         Form(
-            description="simulator: instead of a photo, the goal photo of an earlier run whose request the home's "
-            "memory remembers (asking for a known object again, from memory); only in that run's home"
+            description="instead of a photo, the goal photo of an earlier run whose request the home's memory "
+            "remembers (asking for a known object again, from memory); only in that run's home (a simulator "
+            "home, or the robot's)"
         ),
     ] = None,
     token: Annotated[str | None, Form(description="the console token when it is required")] = None,

@@ -24,11 +24,14 @@ from tests.helpers.polling import poll
 FINAL = ("finished", "stopped", "failed", "interrupted")
 
 
-def stretch_console(data_dir: Path, fake: FakeStretch, viewer: bool = False, **robot: Any) -> Console:
+def stretch_console(
+    data_dir: Path, fake: FakeStretch, viewer: bool = False, memory: bool = False, **robot: Any
+) -> Console:
+    """``memory``: the robot's home memory in ``<data>/memory``, as ``imgnav console`` keeps it."""
     assert fake.ports is not None
     obs, action, state = fake.ports
     config = StretchConfig(obs_port=obs, action_port=action, state_port=state, connect_timeout_s=10.0, **robot)
-    provider = StretchProvider("127.0.0.1", robot_config=config)
+    provider = StretchProvider("127.0.0.1", robot_config=config, memory_dir=data_dir / "memory" if memory else None)
     return Console(
         ConsoleConfig(data_dir=data_dir, viewer=ViewerConfig(port=0) if viewer else None), {"stretch": provider}
     )

@@ -1,7 +1,8 @@
 """The console page's memory panel (issue 31) in a real headless Chromium, with the real
 simulator and agent: empty before the first run in a home, its map and known objects (with the
 goal photo each was asked with) after one, "Find it again" starts a run from memory with that
-photo, and Forget empties it."""
+photo, and Forget empties it; with the fake Stretch, the robot's home and why its memory was
+dropped."""
 
 from __future__ import annotations
 
@@ -118,3 +119,81 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     assert httpx.get(f"{server.url}/api/memory/{home}").json()["goals"] == []
     assert (page.text_content("#memory-words") or "").startswith("Nothing yet")
     assert not errors, (errors, failed)
+
+
+def test_the_memory_panel_shows_the_robots_home_and_why_it_was_dropped(browser, tmp_path: Path) -> None:
+    """The Stretch chosen: the robot's home (console/robot_memory.py), its known object after a run,
+    "Find it again" from memory, and, after the base was pushed by hand, the drop and its reason in
+    the panel and the page's log."""
+    import httpx
+
+    from agent.types import Pose2D
+    from robot.fake_server import FakeStretch
+    from robot.fake_world import BoxWorld
+    from tests.helpers.a11y import check_page
+    from tests.helpers.console_testkit import encode
+    from tests.helpers.robot_console import stretch_console
+
+    world = BoxWorld(pillars=((1.5, 0.5, 0.25),), start_world=Pose2D(-0.5, 0.5, 0.0))  # a pillar ahead
+    fake = FakeStretch(world, obs_port=0, action_port=0, state_port=0).start()
+    server = LiveServer(stretch_console(tmp_path / "data", fake, memory=True, send_posture=False))
+    try:
+        home = httpx.get(f"{server.url}/api/backends/stretch").json()["memory_home"]
+        _, b = browser
+        page = b.new_context(viewport={"width": 1440, "height": 900}).new_page()
+        errors: list[str] = []
+        page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+        page.goto(server.url + "/console")
+        poll(lambda: page.is_visible("#memory-card"), bool, 30, "memory card")
+        assert page.input_value("#backend") == "stretch" and page.text_content("#memory-home") == home
+        poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("Nothing yet"), 30, "empty")
+
+        photo = encode(world.render(world.start_world, fake.tilt_rad)[0], "PNG")  # the pillar
+
+        def robot_run(max_steps: str) -> str:
+            resp = httpx.post(
+                f"{server.url}/api/runs",
+                files={"goal_image": ("g.png", photo, "image/png")},
+                data={"backend": "stretch", "max_steps": max_steps},
+            )
+            assert resp.status_code == 201, resp.text
+            run_id = resp.json()["id"]
+            poll(
+                lambda: httpx.get(f"{server.url}/api/runs/{run_id}").json()["status"], lambda s: s in FINAL, 300, "end"
+            )
+            return run_id
+
+        first = robot_run("1")
+        poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("1 request"), 30, "memory words")
+        items = page.locator("#memory-objects li").all_text_contents()
+        assert len(items) == 1 and items[0].startswith("request 1: ") and items[0].endswith("Find it again"), items
+
+        # "Find it again" on the robot: from memory, with the first request's photo (stopped at once)
+        page.click("#memory-objects li[data-request='1'] button.memory-again")
+        poll(lambda: page.is_enabled("#stop"), bool, 60, "run from memory active")
+        again = httpx.get(f"{server.url}/api/runs").json()["runs"][0]
+        assert again["goal"]["from_run"] == first and again["options"]["home"] == home, again
+        page.click("#stop")
+        poll(
+            lambda: httpx.get(f"{server.url}/api/runs/{again['id']}").json()["status"], lambda s: s in FINAL, 300, "end"
+        )
+
+        left = fake.pose_world
+        fake.push_base(Pose2D(left.x_m, left.y_m - 1.0, left.yaw_rad))  # moved by hand between runs
+        pushed = robot_run("1")
+        words = poll(lambda: page.text_content("#memory-words") or "", lambda t: "Dropped" in t, 30, "the drop")
+        assert f"(run {pushed}): the robot starts 1.00 m and 0 deg from where run {again['id']} left it" in words, words
+        assert words.startswith("1 request")  # the pushed run's own, from nothing
+        log = poll(
+            lambda: page.text_content("#log") or "", lambda t: f"the memory of {home} is dropped" in t, 30, "log"
+        )
+        assert f"run {pushed}: the memory of {home} is dropped: the robot starts" in log
+        poll(lambda: page.text_content("#active-run"), lambda t: t == "idle", 30, "the page idle")
+        problems = check_page(page)
+        assert not problems, problems
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.locator("#memory-card").screenshot(path=str(ARTIFACTS / "memory_panel_robot.png"))
+        assert not errors, errors
+    finally:
+        server.close()
+        fake.close()

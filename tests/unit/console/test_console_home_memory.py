@@ -250,7 +250,7 @@ def test_a_run_with_memory_off_starts_from_nothing_and_leaves_the_home_as_it_was
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from console.session import OptionsError
-    from console.sim_provider import _check_memory
+    from console.session import check_memory_option as _check_memory  # the simulator's and the Stretch's
 
     given: list[Any] = []
 
