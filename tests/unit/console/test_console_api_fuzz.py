@@ -8,26 +8,44 @@ real calibration job first, and the schema's id parameters are narrowed to those
 unknown id): generated requests then read, replay, stop, save and undo real records.
 
 The two server-sent-event streams are left out: a valid request to them never ends (their
-behaviour is tested in test_console_events.py and the API tests)."""
+behaviour is tested in test_console_events.py and the API tests).
+
+``goal_from_run`` (asking for a known object again, issue 31) is fuzzed on its own against a
+console whose home remembers real runs (the schema only knows it as a string, and the scripted
+backend keeps no memory, so schemathesis reaches only its first refusal): hostile ids (random
+text, path traversal, very long, unicode, ids of the right shape that name no run, runs of
+another home or not remembered), alone or with a goal photo, ``memory=off`` or a gallery item.
+Each is a 4xx with the API's JSON error, starts no run and writes no file."""
 
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 import schemathesis
 from fastapi.testclient import TestClient
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
+from hypothesis import strategies as st
 from schemathesis.checks import not_a_server_error
 
+from agent.config import AgentConfig
+from agent.memory import HomeMemory
 from agent.reid.base import Features, Matches
 from agent.reid.identifier import ReIDConfig
+from console import sim_adapter
 from console.api import create_app
+from console.artifacts import run_dir
 from console.calibration import Calibrator
 from console.context import Console, ConsoleConfig
+from console.options import SimRunOptions
+from console.sim_catalog import HomeEntry, Start
+from console.sim_provider import SimProvider
 from tests.helpers.console_testkit import ScriptedProvider, encode, poll, textured_rgb
 
 UNKNOWN_ID = "0123456789ab"
@@ -156,3 +174,126 @@ def test_fuzzing_covers_the_state_changing_routes(api_schema) -> None:
     assert {"/api/runs", "/api/runs/{run_id}/stop", "/api/runs/{run_id}/artifacts/{name}"} <= paths, paths
     assert {"/api/calibration/jobs/{job_id}/save", "/api/calibration/{deployment}/undo"} <= paths, paths
     assert not any(p.endswith("events") for p in paths)
+
+
+# --- goal_from_run (issue 31) ----------------------------------------------------------------
+
+# the stored runs of the memory console: "asked" is a request home-0 remembers (the one id that
+# would start a run on its own), "other" one of home-1, "unremembered" a run in home-0 its memory
+# does not hold, "gone" a request home-0 remembers whose run is no longer stored
+MEMORY_RUNS = {"asked": "00000000000b", "other": "00000000000c", "unremembered": "00000000000d", "gone": "00000000000a"}
+RUN_ID_SHAPE = re.compile(r"[0-9a-f]{12}")
+
+
+@pytest.fixture(scope="module")
+def memory_console(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, Console, Path]]:
+    """A console on the simulator backend (catalogue given, no simulator: a run that starts fails
+    at once) whose home-0 remembers two requests and home-1 one; the client, the console and the
+    folder its data directory is in (three levels up: where ``../`` ids would land)."""
+    root = tmp_path_factory.mktemp("fuzz-memory")
+    data = root / "a" / "b" / "data"
+    provider = SimProvider(data)
+    starts = (Start("r0", "middle", (1.0, 1.0, 0.0)),)
+    provider._homes = {f"home-{s}": HomeEntry(f"home-{s}", s, f"home {s}", 3, starts, ()) for s in (0, 1)}
+    provider._ready = True
+    config = AgentConfig()
+    memories = provider.memories()
+    for key, run_ids in (("home-0", ["gone", "asked"]), ("home-1", ["other"])):
+        slot = memories.acquire(key)
+        memory = HomeMemory(config.memory)
+        for _ in run_ids:
+            memory.begin_goal(config.mapping, memories.matcher)
+        memory.goals = [replace(g, run_id=MEMORY_RUNS[r]) for g, r in zip(memory.goals, run_ids, strict=True)]
+        slot.memory = memory
+        memories.release(slot)
+    console = Console(ConsoleConfig(data_dir=data, viewer=None, allowed_hosts=("testserver",)), {"sim": provider})
+    photo = encode(textured_rgb(64, 80, seed=3), "PNG")
+    with TestClient(create_app(console, close_on_shutdown=False)) as client:
+        for name, seed in (("asked", 0), ("other", 1), ("unremembered", 0)):
+            run_id = MEMORY_RUNS[name]
+            options = SimRunOptions(seed, (1.0, 1.0, 0.0), 5, home=f"home-{seed}", start="r0").to_json()
+            console.store.create_run(
+                run_id, backend="sim", options=options, goal={"path": "goal.png"}, target=None, created_s=1.0
+            )
+            console.store.update_run(run_id, status="finished")
+            run_dir(data, run_id).mkdir(parents=True)
+            (run_dir(data, run_id) / "goal.png").write_bytes(photo)
+        yield client, console, root
+    console.close()
+
+
+def _files(root: Path) -> dict[str, tuple[int, int]]:
+    """Every file and folder under ``root``: its size and modification time."""
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*")}
+
+
+_TEXT = st.characters(exclude_categories=("Cs",))  # any code point a form can carry (no lone surrogates)
+HOSTILE_IDS = st.one_of(
+    st.text(_TEXT, min_size=1, max_size=40),  # random strings
+    st.builds(
+        lambda up, tail: up + tail,
+        st.sampled_from(["../", "../../", "../../../", "..\\", "/", "./", "%2e%2e/", "runs/../"]),
+        st.sampled_from(["x", "etc/passwd", "data/console.sqlite3", MEMORY_RUNS["asked"], "memory/home-0.npz", ""]),
+    ).filter(bool),  # path traversal
+    st.builds(
+        lambda c, n: c * n,
+        st.sampled_from(["a", "0", "\u00e9", "\U0001f600"]),
+        st.sampled_from([13, 4096, 70_000, 300_000]),
+    ),
+    st.text(st.characters(min_codepoint=0x80, exclude_categories=("Cs",)), min_size=1, max_size=24),  # unicode
+    st.from_regex(RUN_ID_SHAPE, fullmatch=True).filter(lambda r: r not in MEMORY_RUNS.values()),  # no such run
+    st.from_regex(RUN_ID_SHAPE, fullmatch=True).map(lambda r: r + "\n"),  # right shape, then a newline
+    st.sampled_from([MEMORY_RUNS[k] for k in ("other", "unremembered", "gone")]),  # not this home's request
+    st.just(MEMORY_RUNS["asked"]),  # remembered: refused only with a second goal or memory off (below)
+)
+
+
+@pytest.mark.slow  # about a second of fuzzing: make test runs it, make test-fast leaves it out
+def test_goal_from_run_refuses_hostile_ids_without_starting_a_run_or_writing(
+    memory_console: tuple[TestClient, Console, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    client, console, root = memory_console
+    opened: list[Any] = []
+
+    def no_simulator(**kw: Any) -> Any:  # a run that starts by mistake is seen here, then fails
+        opened.append(kw)
+        raise RuntimeError("no simulator in this test")
+
+    monkeypatch.setattr(sim_adapter, "open_session", no_simulator)
+    runs_before = [r["id"] for r in client.get("/api/runs").json()["runs"]]
+    files_before = _files(root)
+    photo = encode(textured_rgb(48, 64, seed=4), "PNG")
+    codes: set[str] = set()
+
+    @given(
+        run_id=HOSTILE_IDS,
+        with_photo=st.booleans(),
+        memory=st.sampled_from([None, "on", "off"]),
+        gallery=st.booleans(),
+    )
+    # a run of another home and one this home does not remember, each alone (the route's last checks)
+    @example(run_id=MEMORY_RUNS["other"], with_photo=False, memory=None, gallery=False)
+    @example(run_id=MEMORY_RUNS["unremembered"], with_photo=False, memory="on", gallery=False)
+    @example(run_id="\U0001f600" * 300_000, with_photo=False, memory=None, gallery=False)  # a 1.2 MB form field
+    @settings(max_examples=80, deadline=None, database=None, derandomize=True, suppress_health_check=list(HealthCheck))
+    def fuzz(run_id: str, with_photo: bool, memory: str | None, gallery: bool) -> None:
+        # the one request that may start a run: the remembered id alone, with memory on
+        assume(run_id != MEMORY_RUNS["asked"] or with_photo or memory == "off" or gallery)
+        data = {"home": "home-0", "start": "r0", "goal_from_run": run_id, "max_steps": "5"}
+        if memory is not None:
+            data["memory"] = memory
+        if gallery:
+            data["gallery_item"] = "home-0/i0-v0"
+        files = {"goal_image": ("g.png", photo, "image/png")} if with_photo else None
+        response = client.post("/api/runs", data=data, files=files)
+        assert 400 <= response.status_code < 500, (run_id[:80], response.status_code, response.text[:300])
+        detail = response.json()["detail"]
+        assert isinstance(detail["code"], str) and isinstance(detail["message"], str), detail
+        codes.add(detail["code"])
+        assert console.manager.active_run_id is None and not opened, run_id[:80]
+
+    fuzz()
+    assert [r["id"] for r in client.get("/api/runs").json()["runs"]] == runs_before  # no run was stored
+    assert _files(root) == files_before  # nothing written, in the data directory or beside it
+    # the examples reached the route's own checks, not only the first
+    assert {"unknown_run", "two_goals", "memory_off", "foreign_run", "not_remembered"} <= codes, codes
