@@ -9,7 +9,10 @@ script evaluated in the page, from the computed styles and the DOM:
 * focus order: no positive tabindex, and the keyboard's order (the DOM's, then) follows the
   visual order: each focusable element is below or to the right of the one before it.
 
-``check_page(page)`` returns the problems as sentences (an empty list: none).
+``check_page(page)`` returns the problems as sentences (an empty list: none);
+``check_page(page, every_badge=True)`` first adds to the page one badge of each state its style
+sheets colour (``.badge.<state>``: run statuses, outcomes, candidate states), so that a state the
+page is not showing now (a run that is active, failed, stopped) is checked too.
 """
 
 from __future__ import annotations
@@ -109,6 +112,39 @@ _RULES_JS = r"""
 """
 
 
-def check_page(page: Any) -> list[str]:
-    """The page's accessibility problems (contrast, names, focus order), as sentences."""
-    return list(page.evaluate(_RULES_JS))
+# one badge of every state the page's style sheets colour, in a card at the end of the page
+_ADD_BADGES_JS = r"""
+() => {
+  const states = new Set([""]);
+  for (const sheet of document.styleSheets) {
+    let rules;
+    try { rules = sheet.cssRules; } catch (e) { continue; }
+    for (const r of rules) for (const m of (r.selectorText || "").matchAll(/\.badge\.([\w-]+)/g)) states.add(m[1]);
+  }
+  const box = document.createElement("div");
+  box.className = "card";
+  box.id = "a11y-every-badge";
+  for (const state of states) {
+    const b = document.createElement("span");
+    b.className = `badge ${state}`;
+    b.textContent = state || "plain";
+    box.append(b, " ");
+  }
+  document.body.append(box);
+  return [...states].filter(Boolean);
+}
+"""
+
+
+def check_page(page: Any, every_badge: bool = False) -> list[str]:
+    """The page's accessibility problems (contrast, names, focus order), as sentences; with
+    ``every_badge``, with one badge of each state the style sheets know added for the check."""
+    if not every_badge:
+        return list(page.evaluate(_RULES_JS))
+    states = page.evaluate(_ADD_BADGES_JS)
+    try:
+        if "running" not in states:  # the style sheet was not read: the check would prove nothing
+            return [f"no badge states found in the page's style sheets: {states}"]
+        return list(page.evaluate(_RULES_JS))
+    finally:
+        page.evaluate("() => document.getElementById('a11y-every-badge').remove()")
