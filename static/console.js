@@ -81,8 +81,8 @@
     memoryError("");
     const requests = m.goals.length;
     $("memory-words").textContent = (requests
-      ? `${requests} ${requests === 1 ? "request" : "requests"} in this home; ${m.keyframes} remembered views `
-        + `(${fmt((m.keyframe_bytes + m.map_bytes) / 1e6, 1)} MB).${m.in_use ? " A run is adding to it now." : ""}`
+      ? `${requests} ${requests === 1 ? "request" : "requests"} in this home; ${m.keyframes} remembered ${m.keyframes === 1 ? "view" : "views"} `
+        + `(${fmt((m.keyframe_bytes + m.map_bytes) / 1e6, 1)}\u00a0MB).${m.in_use ? " A run is adding to it now." : ""}`
       : "Nothing yet: the next run here starts from nothing, and later runs start from what it saw.")
       + droppedWords(m.dropped);
     $("memory-map").hidden = !requests;

@@ -18,6 +18,24 @@ pytestmark = pytest.mark.browser
 
 FINAL = ("finished", "stopped", "failed", "interrupted")
 
+# the memory panel's layout: its box, how far its content overflows it, the elements in it wider
+# than it, its buttons (Find it again, Forget) and the photos of the known objects (CSS px)
+_PHONE_FACTS_JS = """() => {
+  const box = (e) => { const r = e.getBoundingClientRect();
+    return { left: r.left, right: r.right, top: r.top, bottom: r.bottom, width: r.width, height: r.height }; };
+  const card = document.getElementById("memory-card");
+  const edge = card.getBoundingClientRect().right;
+  return {
+    page_width: document.documentElement.scrollWidth,
+    card: box(card),
+    card_overflow: card.scrollWidth - card.clientWidth,
+    wider_than_card: [...card.querySelectorAll("*")].filter((e) => e.getBoundingClientRect().right > edge + 0.5)
+      .map((e) => e.outerHTML.slice(0, 80)),
+    buttons: [...card.querySelectorAll("button")].map(box),
+    thumbs: [...card.querySelectorAll("#memory-objects .memory-thumb")].map(box),
+  };
+}"""
+
 
 @pytest.fixture
 def server(sim_data_dir: Path, tmp_path: Path) -> Iterator[LiveServer]:
@@ -63,7 +81,7 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     assert len(memory["goals"]) == 1 and not memory["in_use"]
 
     poll(lambda: page.text_content("#memory-words") or "", lambda t: t.startswith("1 request"), 30, "memory words")
-    assert f"{memory['keyframes']} remembered views" in (page.text_content("#memory-words") or "")
+    assert f"{memory['keyframes']} remembered view" in (page.text_content("#memory-words") or "")
     poll(
         lambda: page.evaluate("() => document.getElementById('memory-map').naturalWidth"),
         lambda w: w == 480,
@@ -82,6 +100,21 @@ def test_the_memory_panel_shows_the_homes_map_and_objects_and_forgets_it(browser
     assert not problems, problems
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.locator("#memory-card").screenshot(path=str(ARTIFACTS / "memory_panel.png"))
+
+    # at a phone's width (the same page, its viewport resized): the panel fits the screen, its
+    # photos are in view at a size one can see, its buttons are a finger's target (44 CSS px)
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.locator("#memory-objects").scroll_into_view_if_needed()
+    phone = page.evaluate(_PHONE_FACTS_JS)
+    assert phone["page_width"] <= 390 and phone["card"]["right"] <= 390, phone  # no sideways scrolling
+    assert phone["card_overflow"] <= 0 and not phone["wider_than_card"], phone
+    assert phone["buttons"] and all(b["height"] >= 44 and b["width"] >= 44 for b in phone["buttons"]), phone
+    assert len(phone["thumbs"]) == len(memory["objects"]), phone
+    for t in phone["thumbs"]:
+        assert 0 <= t["left"] and t["right"] <= 390 and 0 <= t["top"] and t["bottom"] <= 844, phone
+        assert 44 <= t["width"] <= 120 and t["height"] == t["width"], phone
+    page.locator("#memory-card").screenshot(path=str(ARTIFACTS / "memory_panel_phone.png"))
+    page.set_viewport_size({"width": 1440, "height": 900})
 
     # "Find it again": a run in this home, from memory, with the request's goal photo (stopped at once)
     page.click("#memory-objects li[data-request='1'] button.memory-again")
