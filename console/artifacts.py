@@ -43,11 +43,11 @@ ARTIFACT_NAMES: dict[str, str] = {
     "run.webp": "image/webp",
 }
 
-_RUN_ID = re.compile(r"^[0-9a-f]{12}$")
+_RUN_ID = re.compile(r"[0-9a-f]{12}")
 
 
 def valid_run_id(run_id: str) -> bool:
-    return bool(_RUN_ID.match(run_id))
+    return bool(_RUN_ID.fullmatch(run_id))  # fullmatch: "$" would let a trailing newline through
 
 
 def run_dir(data_dir: Path, run_id: str) -> Path:

@@ -287,3 +287,13 @@ def test_viewer_refuses_another_scheme_and_two_hosts_cleanly(caplog: pytest.LogC
         assert _viewer_handshake(port, f"http://127.0.0.1:{port}", [])[0] == "message"
     finally:
         viewer.close()
+
+
+def test_a_run_id_is_exactly_twelve_hex_digits() -> None:
+    from console.artifacts import run_dir, valid_run_id
+
+    assert valid_run_id("0123456789ab")
+    for bad in ("0123456789ab\n", "0123456789AB", "0123456789a", "0123456789abc", "../456789ab", ""):
+        assert not valid_run_id(bad), repr(bad)
+        with pytest.raises(ValueError):
+            run_dir(Path("/tmp/data"), bad)
