@@ -377,3 +377,44 @@ def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
         c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates
     )
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+
+
+def _corridor_explorer(cross_wall_confirmed: bool):
+    """An agent whose map is a 2 m wide corridor explored from x -1 to 5 m, walled at its start
+    and along both sides (confirmed from near), and a wall across it at x 3 m (seen only from afar unless
+    ``cross_wall_confirmed``); the only frontier is the corridor's open end at x 5 m."""
+    world = BoxWorld(room_walls(-1.5, -1.5, 8.0, 1.5), Pose2D(), goal_box=0)
+    agent = oracle_agent(world)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    grid = agent.grid
+    L = grid.layers
+
+    def box(x0, y0, x1, y1):
+        lo, hi = grid.xy_to_ij(np.array([[x0, y0], [x1, y1]]))
+        return (slice(lo[0], hi[0] + 1), slice(lo[1], hi[1] + 1))
+
+    L.explored[box(-1.1, -1.1, 5.0, 1.1)] = True
+    for wall in (box(-1.1, -1.1, 5.0, -1.0), box(-1.1, 1.0, 5.0, 1.1), box(-1.1, -1.1, -1.0, 1.1)):
+        L.obstacle[wall] = L.obstacle_near[wall] = True
+    cross = box(3.0, -1.0, 3.1, 1.0)
+    L.obstacle[cross] = True
+    L.obstacle_near[cross] = cross_wall_confirmed
+    return agent, obs, cross
+
+
+def test_a_wall_seen_only_from_afar_does_not_end_exploration():
+    # confirmed from near, the wall across the corridor leaves no reachable frontier: rescan
+    agent, obs, _ = _corridor_explorer(cross_wall_confirmed=True)
+    assert agent._explore(obs).event == Event.RESCAN
+    # seen only from afar, it does not block the way to the frontier behind it
+    agent, obs, cross = _corridor_explorer(cross_wall_confirmed=False)
+    d = agent._explore(obs)
+    assert d.event == Event.FRONTIER_UNCONFIRMED and d.action == Action.MOVE_FORWARD
+    assert d.plan is not None and d.plan.target_xy_m[0] > 4.5 and d.plan.distance_m < 6.0
+    assert agent._state.unconfirmed
+    # it keeps that way while the wall stands, and goes back to the plain map once it is cleared
+    assert agent._explore(obs).event == Event.FRONTIER_UNCONFIRMED
+    agent.grid.layers.obstacle[cross] = False
+    d = agent._explore(obs)
+    assert d.event == Event.FRONTIER and d.plan is not None and not agent._state.unconfirmed
