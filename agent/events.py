@@ -21,9 +21,6 @@ class Event(str, enum.Enum):
 
     LOOK_AROUND = "look_around"  # the initial full turn; facts: turn, turns
     FRONTIER = "frontier"  # heading for a frontier; facts: choice ("new", "kept")
-    # no frontier reachable otherwise: heading for one past obstacles only ever seen from afar;
-    # facts: choice
-    FRONTIER_UNCONFIRMED = "frontier_unconfirmed"
     RESCAN = "rescan"  # no reachable frontier: forgiving and looking around again
     EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
     APPROACH = "approach"  # heading for the candidate's stop region
@@ -56,7 +53,6 @@ CONTEXT_ORDER = tuple(Context)
 _EVENT_TEXT: dict[Event, str] = {
     Event.LOOK_AROUND: "initial look-around {turn}/{turns}",
     Event.FRONTIER: "frontier ({choice})",
-    Event.FRONTIER_UNCONFIRMED: "frontier past obstacles seen only from afar ({choice})",
     Event.RESCAN: "no reachable frontier: looking around again",
     Event.EXHAUSTED: "no reachable frontier and no goal candidate",
     Event.APPROACH: "navigating to the goal candidate",

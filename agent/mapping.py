@@ -88,11 +88,6 @@ class MapLayers:
     # int8: frames of obstacle evidence left (``MappingConfig.obstacle_evidence_cap``); the one
     # layer that is not bool
     obstacle_evidence: np.ndarray
-    # obstacle cells hit from within ``clear_max_range_m`` at least once since they were last
-    # cleared: confirmed from near. The others were only ever seen from afar, where a heading
-    # error of a degree or two draws a wall 10-20 cm off and no frame can clear it; the planner
-    # may pass through them when nothing is reachable otherwise (``PlannerConfig``, ``unconfirmed``)
-    obstacle_near: np.ndarray
 
     @staticmethod
     def empty(shape: tuple[int, int]) -> MapLayers:
@@ -237,17 +232,12 @@ class GridMap:
             seen &= is_obstacle | (rng <= r_end[col] + self.resolution_m)
         flat = ij[seen, 0] * w + ij[seen, 1]
         self.layers.explored.reshape(-1)[flat] = True
-        obst = inside & is_obstacle
-        obst_flat = ij[obst, 0] * w + ij[obst, 1]
+        obst_flat = ij[inside & is_obstacle, 0] * w + ij[inside & is_obstacle, 1]
         hit = np.zeros(0, np.int64)
         if len(obst_flat):
             cells, counts = np.unique(obst_flat, return_counts=True)
             hit = cells[counts >= cfg.obstacle_min_points]
             self.layers.obstacle.reshape(-1)[hit] = True
-            # confirmed from near: a hit cell with a point of this frame within the clearing range
-            near_pt = np.hypot(cloud.xy_base[obst, 0], cloud.xy_base[obst, 1]) <= cfg.clear_max_range_m
-            near = np.intersect1d(hit, obst_flat[near_pt], assume_unique=False)
-            self.layers.obstacle_near.reshape(-1)[near] = True
         if cfg.obstacle_evidence_cap > 0:
             self._weigh_evidence(hit, see_through)
         return MapUpdate(len(xy), int(np.count_nonzero(is_obstacle)), n_beyond, n_outside, grew)
@@ -267,9 +257,7 @@ class GridMap:
         was_hit.reshape(-1)[hit] = True
         spend = through & ~was_hit[rows, cols] & (win > 0)
         win[spend] -= 1
-        cleared = spend & (win == 0)
-        self.layers.obstacle[rows, cols][cleared] = False
-        self.layers.obstacle_near[rows, cols][cleared] = False
+        self.layers.obstacle[rows, cols][spend & (win == 0)] = False
 
     def _fill_fan(
         self, obs: Observation, uv_px: np.ndarray, xy_base: np.ndarray, is_obstacle: np.ndarray

@@ -150,9 +150,6 @@ class PolicyState:
     ring_confirmed: frozenset[int] = frozenset()  # steps whose look from the verify ring confirmed a candidate
     last_resort: LastResortState = field(default_factory=lambda: LastResortState())
     rechecked: bool = False  # the second look at the best frames when exhausted was taken
-    # exploring through unconfirmed obstacles (``Event.FRONTIER_UNCONFIRMED``) until a frontier
-    # is reachable without
-    unconfirmed: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -103,12 +103,8 @@ class FMMPlanner:
     def inflation_radius_cells(self, resolution_m: float) -> float:
         return (self.config.robot_radius_m + self.config.inflation_margin_m) / resolution_m
 
-    def distance_field(
-        self, grid: GridMap, pose: Pose2D, extra_targets: np.ndarray | None = None, unconfirmed: bool = False
-    ) -> DistanceField:
-        """FMM from the agent's cell. ``extra_targets`` (H, W) bool only widens the window.
-        ``unconfirmed``: obstacle cells never hit from near (``MapLayers.obstacle_near``) do not
-        block; the exploration's way out when no frontier is reachable otherwise."""
+    def distance_field(self, grid: GridMap, pose: Pose2D, extra_targets: np.ndarray | None = None) -> DistanceField:
+        """FMM from the agent's cell. ``extra_targets`` (H, W) bool only widens the window."""
         cfg = self.config
         L = grid.layers
         h, w = grid.shape
@@ -129,8 +125,7 @@ class FMMPlanner:
         i1 = min(max(ai, rows[-1] if len(rows) else ai) + m + 1, h)
         j0 = max(min(aj, cols[0] if len(cols) else aj) - m, 0)
         j1 = min(max(aj, cols[-1] if len(cols) else aj) + m + 1, w)
-        seen = (L.obstacle & L.obstacle_near) if unconfirmed else L.obstacle
-        blocked_raw = (seen | L.collision)[i0:i1, j0:j1]
+        blocked_raw = (L.obstacle | L.collision)[i0:i1, j0:j1]
         r = self.inflation_radius_cells(grid.resolution_m)
         kernel = disk_kernel(r)
         inflated = cv2.dilate(blocked_raw.astype(np.uint8), kernel).astype(bool)

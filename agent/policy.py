@@ -63,7 +63,7 @@ from agent.mapping import GridMap
 from agent.memory import HomeMemory
 from agent.modes import Decision, Mode, PolicyState, RescanState
 from agent.motion import after_action, move_key
-from agent.planner import DistanceField, FMMPlanner, Plan, PlanError
+from agent.planner import FMMPlanner, Plan, PlanError
 from agent.reid.base import Matcher
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
@@ -414,58 +414,10 @@ class ModIINAgent:
         )
 
     def _explore(self, obs: Observation) -> Decision:
-        """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end.
-
-        When no frontier is reachable, the obstacles only ever seen from afar
-        (``MapLayers.obstacle_near``) are not trusted to block: under a real robot's pose error
-        a wall seen 4-5 m away lengthwise is drawn again 10-20 cm into the corridor beside it,
-        out of the range at which a clear view could take it back, and such copies closed
-        doorways and corridors until exploration stopped with rooms unseen. The robot heads
-        for a frontier past them (``Event.FRONTIER_UNCONFIRMED``); coming nearer, it confirms a
-        real wall (and plans again) or sees through a false one. It goes back to the plain
-        field as soon as a frontier is reachable in it. With exact depth and pose this almost
-        never acts: a frontier is nearly always reachable."""
+        """EXPLORE the nearest frontier; RESCAN when none is reachable; EXHAUSTED at the end."""
         grid, pose = self.grid, obs.pose
         front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
         field = self.planner.distance_field(grid, pose)
-        if self._state.unconfirmed:
-            if not self._frontier_reachable(field, front):
-                return self._explore_unconfirmed(obs, front, None)
-            self.explorer.reset()  # its target was chosen past unconfirmed obstacles
-            self._set(unconfirmed=False)
-        decision, error, front = self._to_frontier(obs, front, field, Event.FRONTIER)
-        if decision is not None:
-            return decision
-        return self._explore_unconfirmed(obs, front, error)
-
-    def _explore_unconfirmed(self, obs: Observation, front: np.ndarray, error: str | None) -> Decision:
-        L = self.grid.layers
-        if (L.obstacle & ~L.obstacle_near).any():
-            if not self._state.unconfirmed:
-                self.explorer.reset()
-            field = self.planner.distance_field(self.grid, obs.pose, unconfirmed=True)
-            decision, error_u, _ = self._to_frontier(obs, front, field, Event.FRONTIER_UNCONFIRMED)
-            if decision is not None:
-                self._set(unconfirmed=True)
-                return decision
-            error = error or error_u
-        self._set(unconfirmed=False)
-        return self._rescan(obs, error)
-
-    def _frontier_reachable(self, field: DistanceField, front: np.ndarray) -> bool:
-        cells = np.argwhere(front)
-        if len(cells) == 0:
-            return False
-        d = field.at(cells)
-        return bool((np.isfinite(d) & (d > self.config.frontier.reached_radius_m)).any())
-
-    def _to_frontier(
-        self, obs: Observation, front: np.ndarray, field: DistanceField, event: Event
-    ) -> tuple[Decision | None, str | None, np.ndarray]:
-        """Head for the frontier the explorer chooses in ``field`` (up to three tries, each
-        failed plan giving its target up); returns the decision (None: no frontier reachable),
-        the last planner error and the frontier mask as it ends."""
-        grid, pose = self.grid, obs.pose
         error = None
         for _ in range(3):
             choice = self.explorer.choose(grid, field, front)
@@ -484,17 +436,16 @@ class ModIINAgent:
             action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
             if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
-            decision = Decision(
+            return Decision(
                 action,
                 Mode.EXPLORE,
-                event,
+                Event.FRONTIER,
                 event_facts(choice=choice.reason),
                 plan=plan,
                 target_kind="frontier",
                 planner_error=error,
             )
-            return decision, error, front
-        return None, error, front
+        return self._rescan(obs, error)
 
     def _rescan(self, obs: Observation, error: str | None) -> Decision:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is

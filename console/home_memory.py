@@ -68,8 +68,6 @@ if TYPE_CHECKING:  # agent.memory imports torch: not before console.agents.passi
 logger = logging.getLogger(__name__)
 
 FORMAT_VERSION = 2
-# map layers added after format 2 was written; a file without one reads with its default (``memory_file_from_bytes``)
-LAYERS_ADDED = frozenset({"obstacle_near"})
 READABLE_FORMATS = (1, 2)  # 1: the goals have no run ids
 MARK_MERGE_M = 0.5  # known objects closer than this are one mark on the map, numbered with each request
 HOME_KEY = re.compile(r"^((home|scene)-\d{1,9}|robot-[0-9a-f]{10})$")
@@ -319,10 +317,7 @@ def memory_file_from_bytes(data: bytes, config: MemoryConfig, mapping: MappingCo
             if grid_meta["mapping"] != dataclasses.asdict(mapping):
                 raise MemoryFileError("the map was made with another mapping config")
             grid = GridMap(mapping)
-            names = grid_meta["layers"]
-            layers = {n: arrays[names[n]] for n in grid.layers.names() if n in names or n not in LAYERS_ADDED}
-            if "obstacle_near" not in layers:  # a file from before the layer: its obstacles count as confirmed
-                layers["obstacle_near"] = np.asarray(layers["obstacle"]).copy()
+            layers = {n: arrays[grid_meta["layers"][n]] for n in grid.layers.names()}
             shapes = {a.shape for a in layers.values()}
             if len(shapes) != 1 or any(a.dtype != LAYER_DTYPES.get(n, bool) or a.ndim != 2 for n, a in layers.items()):
                 raise MemoryFileError("the map's layers are not (H, W) arrays of one shape and their types")

@@ -172,7 +172,6 @@ def timing_rows(timings: Mapping[str, Any]) -> list[tuple[str, str]]:
 EVENT_WORDS: dict[str, str] = {
     "look_around": "looking around",
     "frontier": "exploring",
-    "frontier_unconfirmed": "exploring past walls seen only from afar",
     "rescan": "nowhere new to explore: looking around again",
     "exhausted": "nowhere left to explore and no candidate: giving up",
     "approach": "driving to the object",

@@ -194,26 +194,3 @@ def test_an_obstacle_is_not_cleared_beyond_the_clearing_range_or_at_the_first_hi
     assert blocked(grid, far_box)  # 3.6 m away: depth too coarse to clear
     grid.update(observation(ROOM, Pose2D(1.0, 0.0, 0.0)))  # 2.6 m away
     assert not blocked(grid, far_box)
-
-
-def near(grid, box) -> bool:
-    """Any obstacle cell on the box's footprint confirmed from near (``obstacle_near``)."""
-    lo = grid.xy_to_ij(np.array([[box[0] - 0.05, box[1]]]))[0]
-    hi = grid.xy_to_ij(np.array([[box[2], box[3]]]))[0]
-    win = (slice(lo[0], hi[0] + 1), slice(lo[1], hi[1] + 1))
-    return bool((grid.layers.obstacle[win] & grid.layers.obstacle_near[win]).any())
-
-
-def test_an_obstacle_seen_only_from_afar_is_unconfirmed_until_hit_from_near():
-    far_box = (3.6, -0.1, 3.8, 0.1, 0.5)
-    grid = GridMap(EVIDENCE)  # clear_max_range_m 3.0: also the range that confirms
-    grid.update(observation(ROOM + [far_box], Pose2D()))
-    assert blocked(grid, far_box) and not near(grid, far_box)
-    wall = cell(grid, 5.02, 0.0)
-    assert grid.layers.obstacle[wall] and not grid.layers.obstacle_near[wall]  # 5 m away
-    grid.update(observation(ROOM + [far_box], Pose2D(1.0, 0.0, 0.0)))  # 2.6 m away
-    assert near(grid, far_box)
-    # cleared (the box taken away, seen through from near): no longer confirmed either
-    for _ in range(3):
-        grid.update(observation(ROOM, Pose2D(1.0, 0.0, 0.0)))
-    assert not blocked(grid, far_box) and not near(grid, far_box)

@@ -123,23 +123,3 @@ def test_region_within():
     cells[10, 10] = True
     r = region_within(cells, 0.25, 0.05)
     assert r[10, 15] and not r[10, 16] and r[13, 13] and not r[14, 14]
-
-
-def test_an_unconfirmed_obstacle_blocks_unless_asked_and_a_confirmed_one_always():
-    """``distance_field(unconfirmed=True)``: obstacle cells never hit from near do not block; the
-    corridor's walls (confirmed) and a confirmed cross wall still do."""
-    grid = corridor_grid()
-    L = grid.layers
-    L.obstacle_near[:] = L.obstacle  # every wall of the corridor seen from near
-    cross = grid.xy_to_ij(np.array([[3.6, 2.0], [4.4, 2.3]]))
-    win = (slice(cross[0, 0], cross[1, 0]), slice(cross[0, 1], cross[1, 1]))
-    L.obstacle[win] = True  # a wall across the corridor, seen only from afar
-    planner = FMMPlanner()
-    pose, goal = Pose2D(), target_at(grid, 4.0, 4.0)
-    with pytest.raises(PlanError):
-        planner.plan(grid, planner.distance_field(grid, pose), pose, goal)
-    through = planner.plan(grid, planner.distance_field(grid, pose, unconfirmed=True), pose, goal)
-    assert 7.0 < through.distance_m < 8.3  # along the corridor (8 m, its corner cut), through the wall
-    L.obstacle_near[win] = True  # confirmed from near: it blocks whatever is asked
-    with pytest.raises(PlanError):
-        planner.plan(grid, planner.distance_field(grid, pose, unconfirmed=True), pose, goal)

@@ -559,21 +559,3 @@ def test_finding_an_object_again_needs_the_token_and_a_run_this_home_remembers(
     assert "no simulator in this test" in ended["outcome_detail"]
     assert opened == [("home-0", new["id"])]  # the home's memory, noting the goal as this run's
     assert not find_console.provider.memories().slot("home-0").in_use  # released when its open failed
-
-
-def test_a_file_from_before_the_confirmed_obstacle_layer_reads_with_its_obstacles_confirmed() -> None:
-    mem = filled_memory()
-    assert mem.grid is not None
-    L = mem.grid.layers
-    L.obstacle_near[10, 20:25] = True  # some obstacles confirmed from near, the others not
-    data = memory_bytes(mem, None)
-    back, _ = memory_from_bytes(data, CONFIG.memory, CONFIG.mapping, "xfeat")
-    assert back.grid is not None and np.array_equal(back.grid.layers.obstacle_near, L.obstacle_near)
-
-    def before(meta: dict[str, Any]) -> None:  # written before obstacle_near existed
-        del meta["grid"]["layers"]["obstacle_near"]
-
-    old, _ = memory_from_bytes(rewritten(data, before), CONFIG.memory, CONFIG.mapping, "xfeat")
-    assert old.grid is not None and old.grid.layers.obstacle.any()
-    assert np.array_equal(old.grid.layers.obstacle_near, old.grid.layers.obstacle)
-    assert np.array_equal(old.grid.layers.explored, back.grid.layers.explored)
