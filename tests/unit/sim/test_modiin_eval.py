@@ -78,7 +78,7 @@ def attribution(steps):
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
 
-    a.modes, a.timings = Counter(), {}
+    a.modes, a.events, a.timings = Counter(), Counter(), {}
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
     a.second_look_step = None
@@ -191,6 +191,7 @@ def test_attribution_records_the_step_of_the_second_look():
         a.on_step(type("O", (), {"step": k, "pose": Pose2D(0.0, 4.5, 0.0)})(), None, rec)
     out = a.finish({"success": False})["modiin"]
     assert out["second_look_step"] == 3 and out["final_event"] == "verify_approach"
+    assert out["events"] == {"frontier": 3, "verify_approach": 2}  # steps per event
     assert out["final_context"] == ["side_step", "second_look"]
 
 
