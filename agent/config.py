@@ -13,6 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Literal
 
+from agent.alignment import AlignmentConfig
 from agent.configio import from_dict, load_yaml
 from agent.frontier import FrontierConfig
 from agent.localisation import LocalisationConfig
@@ -110,6 +111,8 @@ class PolicyConfig:
 @dataclass(frozen=True, slots=True)
 class AgentConfig:
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    # each depth frame aligned to the map before it is fused (agent/alignment.py)
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
     reid: ReIDConfig = field(default_factory=ReIDConfig)

@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agent.projection import camera_rays_base, lift_depth_image
+from agent.alignment import Alignment, AlignmentConfig, align_frame
+from agent.projection import PointCloud, camera_rays_base, lift_depth_image
 from agent.types import ROBOT_HEIGHT_M, ROBOT_RADIUS_M, MapSnapshot, Observation, Pose2D
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,15 @@ class MapLayers:
 
     def names(self) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(self))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class DepthFrame:
+    """A depth frame lifted once (``GridMap.lift``): its points at ``pose``, readings beyond range."""
+
+    cloud: PointCloud
+    pose: Pose2D
+    n_beyond: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,8 +194,8 @@ class GridMap:
 
     # --- updates --------------------------------------------------------------------
 
-    def update(self, obs: Observation) -> MapUpdate:
-        """Fuse one depth frame (vectorised): obstacle, explored and the free-space fan."""
+    def lift(self, obs: Observation) -> DepthFrame:
+        """The frame's depth, filtered (``depth_consistency``) and lifted at ``obs.pose``."""
         cfg = self.config
         depth = obs.depth_m
         if cfg.depth_consistency > 0:
@@ -202,6 +212,30 @@ class GridMap:
             min_depth_m=cfg.min_depth_m,
             max_depth_m=cfg.max_depth_m,
         )
+        return DepthFrame(cloud, obs.pose, n_beyond)
+
+    def align(self, frame: DepthFrame, config: AlignmentConfig) -> Alignment:
+        """The pose near the frame's at which its obstacle points fit this map best (``agent.alignment``)."""
+        cfg = self.config
+        height = frame.cloud.xyz_run[:, 2]
+        is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
+        return align_frame(
+            self.layers.obstacle,
+            self.origin_xy_m,
+            self.resolution_m,
+            frame.cloud.xy_base[is_obstacle],
+            frame.pose,
+            config,
+        )
+
+    def update(self, obs: Observation, frame: DepthFrame | None = None) -> MapUpdate:
+        """Fuse one depth frame (vectorised): obstacle, explored and the free-space fan. ``frame``:
+        the frame already lifted (``lift``), possibly at another pose than ``obs.pose`` (aligned)."""
+        cfg = self.config
+        if frame is None:
+            frame = self.lift(obs)
+        cloud = frame.cloud if frame.pose == obs.pose else frame.cloud.at_pose(obs.pose)
+        n_beyond = frame.n_beyond
         xy = cloud.xyz_run[:, :2]
         pose_xy = np.array([obs.pose.x_m, obs.pose.y_m])
         lo = np.minimum(xy.min(axis=0), pose_xy) if len(xy) else pose_xy

@@ -153,7 +153,8 @@ class ModIINAgent:
         # own (OpenCV releases the GIL); the first localisation waits for it. Same mask, same
         # decisions, shorter start.
         self._goal_mask = Pending(self.segmenter.mask, goal_image) if self.segmenter is not None else None
-        self._prev_pose: Pose2D | None = None
+        self._prev_pose: Pose2D | None = None  # aligned (agent.alignment)
+        self._prev_estimate: Pose2D | None = None  # as received
         self._prev_action: Action | None = None
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
         self._record = None
@@ -172,12 +173,22 @@ class ModIINAgent:
         t = time.perf_counter()
         if self._prev_pose is None and self.home_memory is not None:
             self.home_memory.check_start(obs.pose)
+        # the frame aligned to the map: from here on the agent's pose is the aligned one, except
+        # that whether a move moved the robot is judged on the estimates (odometry)
+        estimate = obs.pose
+        frame = self.grid.lift(obs)
+        if self.config.alignment.enabled:
+            t_align = time.perf_counter()
+            aligned = self.grid.align(frame, self.config.alignment)
+            if aligned.corrected:
+                obs = replace(obs, pose=aligned.pose)
+            timings["align"] = _ms(t_align)
         if self._prev_pose is not None:
-            assert self._prev_action is not None  # set with the pose
+            assert self._prev_action is not None and self._prev_estimate is not None  # set with the pose
             self._set(motion=after_action(self._state.motion, self._prev_action))
             if (
                 self._prev_action == Action.MOVE_FORWARD
-                and obs.pose.distance_to(self._prev_pose) < pc.collision_min_motion_m
+                and estimate.distance_to(self._prev_estimate) < pc.collision_min_motion_m
             ):
                 self.grid.mark_collision(self._prev_pose)
                 m = self._state.motion
@@ -185,7 +196,7 @@ class ModIINAgent:
             self.grid.mark_visited((self._prev_pose.x_m, self._prev_pose.y_m), (obs.pose.x_m, obs.pose.y_m))
         else:
             self.grid.mark_visited((obs.pose.x_m, obs.pose.y_m), (obs.pose.x_m, obs.pose.y_m))
-        self.grid.update(obs)
+        self.grid.update(obs, frame)
         timings["mapping"] = _ms(t)
 
         # 2. re-identification
@@ -247,7 +258,7 @@ class ModIINAgent:
         timings["planning"] = _ms(t)
 
         action = decision.action
-        self._prev_pose, self._prev_action = obs.pose, action
+        self._prev_pose, self._prev_estimate, self._prev_action = obs.pose, estimate, action
         self._set(mode=decision.mode, steps=self._state.steps + 1)
         self._decision = decision
         snap = None

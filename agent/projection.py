@@ -38,6 +38,11 @@ class PointCloud:
     xy_base: np.ndarray
     uv_px: np.ndarray
 
+    def at_pose(self, pose: Pose2D) -> PointCloud:
+        """The same points with the robot at ``pose`` (the run-frame x, y from the base frame)."""
+        xy = pose.transform_xy(self.xy_base).astype(np.float32)
+        return PointCloud(np.column_stack([xy, self.xyz_run[:, 2]]), self.xy_base, self.uv_px)
+
 
 def camera_rays_base(
     u_px: np.ndarray, v_px: np.ndarray, intrinsics: Intrinsics, tilt_rad: float

@@ -36,7 +36,7 @@ import numpy as np
 from agent.config import AgentConfig, agent_config_from_dict, load_agent_config
 from agent.configio import to_dict
 from agent.events import Context
-from agent.types import Action, AgentRecord, Observation
+from agent.types import Action, AgentRecord, Observation, wrap_angle
 from sim.evaluation.compare import FAILURE_CLASSES
 from sim.evaluation.registry import AgentSpec, register
 
@@ -352,12 +352,18 @@ class Attribution:
         self.gated_goal_in_view = 0  # steps with the goal in view on which the gate skipped the full matcher
         self.second_look_step: int | None = None  # the step that took the second look when exhausted
         self.pose_error_m: list[float] = []  # believed against true position, per step (realism's pose noise)
+        self.yaw_error_deg: list[float] = []  # ... and heading
+        self.aligned_steps = 0  # steps whose frame the agent fused at a pose it corrected (agent.alignment)
 
     def on_step(self, obs: Observation, action: Action, record: AgentRecord | None) -> None:
         self.steps += 1
-        believed = self.oracle.frame_world.compose(obs.pose)
+        # the agent's belief: its record's pose (aligned to its map, agent.alignment), else the estimate
+        pose = record.pose if record is not None else obs.pose
+        self.aligned_steps += record is not None and record.pose != obs.pose
+        believed = self.oracle.frame_world.compose(pose)
         true = self.oracle.pose_world
         self.pose_error_m.append(math.hypot(believed.x_m - true.x_m, believed.y_m - true.y_m))
+        self.yaw_error_deg.append(abs(math.degrees(wrap_angle(believed.yaw_rad - true.yaw_rad))))
         px = int(self.oracle.goal_mask().sum())
         seen = px >= self.seen_px
         if seen:
@@ -493,6 +499,11 @@ class Attribution:
                     "max": round(max(self.pose_error_m, default=0.0), 3),
                     "final": round(self.pose_error_m[-1] if self.pose_error_m else 0.0, 3),
                 },
+                "yaw_error_deg": {
+                    "median": round(float(np.median(self.yaw_error_deg)) if self.yaw_error_deg else 0.0, 2),
+                    "max": round(max(self.yaw_error_deg, default=0.0), 2),
+                },
+                "aligned_steps": self.aligned_steps,
                 "trace": {
                     "reid_score": self.trace_score,
                     "goal_px": self.trace_goal_px,
