@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agent.alignment import Alignment, AlignmentConfig, align_frame
+from agent.alignment import Alignment, AlignmentConfig, align_frame, frame_scan
 from agent.projection import PointCloud, camera_rays_base, lift_depth_image
 from agent.types import ROBOT_HEIGHT_M, ROBOT_RADIUS_M, MapSnapshot, Observation, Pose2D
 
@@ -219,13 +219,9 @@ class GridMap:
         cfg = self.config
         height = frame.cloud.xyz_run[:, 2]
         is_obstacle = (height >= cfg.obstacle_min_height_m) & (height <= cfg.obstacle_max_height_m)
+        scan = frame_scan(frame.cloud.xy_base, frame.cloud.uv_px, is_obstacle, config.max_range_m)
         return align_frame(
-            self.layers.obstacle,
-            self.origin_xy_m,
-            self.resolution_m,
-            frame.cloud.xy_base[is_obstacle],
-            frame.pose,
-            config,
+            self.layers.obstacle, self.layers.explored, self.origin_xy_m, self.resolution_m, scan, frame.pose, config
         )
 
     def update(self, obs: Observation, frame: DepthFrame | None = None) -> MapUpdate:
