@@ -43,6 +43,13 @@ class AlignmentConfig:
     min_gain_m: float = 0.02
     # ... and put this share of the scan within one cell of a mapped surface
     min_inlier_share: float = 0.9
+    # ... and the previous frame must have asked for the same correction (within 1 deg, a cell at
+    # 3 m, and a cell in position): a pose error lasts between a localiser's corrections, while a
+    # frame that fits better elsewhere by chance (a wall seen alone from up close) is one frame
+    # (clean: 3 such frames in 298 steps of two train episodes, none twice in a row; under
+    # `stretch` 11 corrections taken in the same steps, benchmarks/alignment_check.py)
+    agree_yaw_deg: float = 1.0
+    agree_shift_m: float = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,4 +174,15 @@ def align_frame(
         estimate_score_m=est,
         inlier_share=share,
         estimate_inlier_share=share0,
+    )
+
+
+def agrees(previous: Alignment | None, current: Alignment, cfg: AlignmentConfig) -> bool:
+    """Whether two consecutive frames' proposals ask for the same correction (both corrected)."""
+    return (
+        previous is not None
+        and previous.corrected
+        and current.corrected
+        and abs(previous.yaw_deg - current.yaw_deg) <= cfg.agree_yaw_deg + 1e-9
+        and math.dist(previous.shift_m, current.shift_m) <= cfg.agree_shift_m + 1e-9
     )

@@ -52,6 +52,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from agent.alignment import Alignment, agrees
 from agent.approach import CandidateNavigator, Scene
 from agent.background import Pending
 from agent.candidates import CandidateMemory, CandidateState, GoalCandidate, evaluate
@@ -155,6 +156,7 @@ class ModIINAgent:
         self._goal_mask = Pending(self.segmenter.mask, goal_image) if self.segmenter is not None else None
         self._prev_pose: Pose2D | None = None  # aligned (agent.alignment)
         self._prev_estimate: Pose2D | None = None  # as received
+        self._alignment: Alignment | None = None  # the last frame's proposal (agent.alignment)
         self._prev_action: Action | None = None
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
         self._record = None
@@ -180,8 +182,9 @@ class ModIINAgent:
         if self.config.alignment.enabled:
             t_align = time.perf_counter()
             aligned = self.grid.align(frame, self.config.alignment)
-            if aligned.corrected:
+            if agrees(self._alignment, aligned, self.config.alignment):
                 obs = replace(obs, pose=aligned.pose)
+            self._alignment = aligned
             timings["align"] = _ms(t_align)
         if self._prev_pose is not None:
             assert self._prev_action is not None and self._prev_estimate is not None  # set with the pose

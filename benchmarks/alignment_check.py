@@ -27,7 +27,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.alignment import AlignmentConfig  # noqa: E402
+from agent.alignment import Alignment, AlignmentConfig, agrees  # noqa: E402
 from agent.loop import run_loop  # noqa: E402
 from agent.types import Observation, Pose2D, wrap_angle  # noqa: E402
 from sim.backend import SimBackend  # noqa: E402
@@ -70,19 +70,32 @@ def main() -> int:
         agent = get_spec("modiin").make_agent(args, backend.oracle)
         start = ep.start_pose_world  # the run frame: the estimate starts at the true start
         act = agent.act
+        previous: dict[str, Alignment] = {}
 
         def probe(
-            obs: Observation, act=act, agent=agent, backend=backend, start=start, episode_id=episode_id
+            obs: Observation,
+            act=act,
+            agent=agent,
+            backend=backend,
+            start=start,
+            episode_id=episode_id,
+            previous=previous,
         ) -> object:
             if agent.last_record is not None:  # from the second frame: the map has something
                 true = backend.oracle.pose_world.relative_to(start)
                 frame = agent.grid.lift(obs)
                 y0, p0 = errors(obs.pose, true)
                 for name, cfg in settings:
-                    got = agent.grid.align(frame, cfg)
+                    proposal = agent.grid.align(frame, cfg)
+                    taken = agrees(previous.get(name), proposal, cfg)  # as the agent takes it
+                    previous[name] = proposal
+                    got = proposal if taken else Alignment(obs.pose, False)
                     y1, p1 = errors(got.pose, true)
                     rows[name].append((y0, y1, p0, p1, got.corrected))
-                    if args.verbose and got.corrected:
+                    if args.verbose and proposal.corrected:
+                        got = proposal
+                        y1, p1 = errors(got.pose, true)
+                        print(f"  {'taken' if taken else 'alone'}", end="")
                         print(
                             f"  {episode_id} step {obs.step} {name}: yaw {y0:.2f} -> {y1:.2f} deg, "
                             f"score {got.estimate_score_m:.4f} -> {got.score_m:.4f} m, "

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.alignment import AlignmentConfig
+from agent.alignment import Alignment, AlignmentConfig, agrees
 from agent.mapping import GridMap, MappingConfig
 from agent.types import Pose2D
 from tests.helpers.agent_scenes import observation, room_walls
@@ -121,3 +121,21 @@ def test_too_few_obstacle_points_are_not_aligned():
     frame = grid.lift(obs)
     got = grid.align(frame, dataclasses.replace(ALIGN, min_points=len(frame.cloud.xy_base) + 1))
     assert not got.corrected
+
+
+def test_a_correction_is_taken_when_two_frames_in_a_row_ask_for_it():
+    grid = looked_around()
+    true = Pose2D(1.0, 0.5, math.radians(20))
+    first = grid.align(
+        grid.lift(dataclasses.replace(observation(BOXES, true), pose=estimate_off(true, 2.0, 0, 0))), ALIGN
+    )
+    true2 = Pose2D(1.0, 0.5, math.radians(50))  # turned: the same heading error
+    second = grid.align(
+        grid.lift(dataclasses.replace(observation(BOXES, true2), pose=estimate_off(true2, 2.0, 0, 0))), ALIGN
+    )
+    assert first.corrected and second.corrected
+    assert agrees(first, second, ALIGN)
+    assert not agrees(None, second, ALIGN)  # the first frame alone is not enough
+    other = dataclasses.replace(second, yaw_deg=second.yaw_deg + 2 * ALIGN.agree_yaw_deg)
+    assert not agrees(first, other, ALIGN)  # another correction: a chance fit
+    assert not agrees(first, Alignment(true2, False), ALIGN)
