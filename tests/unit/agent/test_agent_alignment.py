@@ -9,8 +9,12 @@ import pytest
 
 from agent.alignment import Alignment, AlignmentConfig, agrees
 from agent.mapping import GridMap, MappingConfig
-from agent.types import Pose2D
+from agent.policy import ModIINAgent
+from agent.types import Intrinsics, Pose2D, wrap_angle
+from tests.helpers.agent_runs import oracle_config
 from tests.helpers.agent_scenes import observation, room_walls
+
+SMALL = Intrinsics.from_hfov(180, 320, 42.0)  # the sim camera's shape at half size
 
 # a 7 x 5 m room with furniture along its walls (so that a shift along a wall is seen too); the
 # surfaces lie off the 5 cm cell boundaries, as almost all do in a home
@@ -139,3 +143,31 @@ def test_a_correction_is_taken_when_two_frames_in_a_row_ask_for_it():
     other = dataclasses.replace(second, yaw_deg=second.yaw_deg + 2 * ALIGN.agree_yaw_deg)
     assert not agrees(first, other, ALIGN)  # another correction: a chance fit
     assert not agrees(first, Alignment(true2, False), ALIGN)
+
+
+def agent_beliefs(enabled: bool) -> list[Pose2D]:
+    """The poses an agent records for a look-around at exact poses, then two frames (turned 30 deg
+    apart) whose estimate is off by 2 deg."""
+    config = oracle_config()
+    config = dataclasses.replace(config, alignment=dataclasses.replace(config.alignment, enabled=enabled))
+    agent = ModIINAgent(config, oracle_reid=lambda obs: False, oracle_ego_mask=lambda obs: np.zeros((1, 1), bool))
+    frames = [(Pose2D(1.0, 0.5, k * math.radians(30)), 0.0) for k in range(12)]
+    frames += [(Pose2D(1.0, 0.5, math.radians(20)), 2.0), (Pose2D(1.0, 0.5, math.radians(50)), 2.0)]
+    beliefs = []
+    for step, (true, error_deg) in enumerate(frames):
+        obs = dataclasses.replace(
+            observation(BOXES, true, intrinsics=SMALL, step=step), pose=estimate_off(true, error_deg, 0.0, 0.0)
+        )
+        if step == 0:
+            agent.reset(obs.goal_image)
+        agent.act(obs)
+        beliefs.append(agent.last_record.pose)
+    return beliefs
+
+
+def test_the_agent_takes_a_correction_that_two_frames_in_a_row_ask_for():
+    on, off = agent_beliefs(enabled=True), agent_beliefs(enabled=False)
+    assert on[:12] == off[:12]  # exact poses: nothing corrected
+    assert on[12] == off[12]  # the first tilted frame alone: its estimate
+    assert math.degrees(off[13].yaw_rad - math.radians(50)) == pytest.approx(2.0)
+    assert abs(math.degrees(wrap_angle(on[13].yaw_rad - math.radians(50)))) <= 0.5  # the second: aligned

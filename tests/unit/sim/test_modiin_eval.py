@@ -1,4 +1,5 @@
 import argparse
+import math
 
 import numpy as np
 import pytest
@@ -55,7 +56,8 @@ class FakeOracle:
 
 
 class Rec:
-    def __init__(self, detected, pts, mode="explore", full_matcher=True):
+    def __init__(self, detected, pts, mode="explore", full_matcher=True, pose=Pose2D(0.0, 4.5, 0.0)):
+        self.pose = pose  # the agent's belief (its aligned pose, agent.alignment)
         self.goal_detected = detected
         self.goal_points_xyz = np.asarray(pts, np.float32).reshape(-1, 3)
         self.mode, self.reason, self.planner_error, self.timings_ms = mode, "", None, {"total": 1.0}
@@ -82,7 +84,7 @@ def attribution(steps):
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
     a.second_look_step = None
-    a.pose_error_m = []
+    a.pose_error_m, a.yaw_error_deg, a.aligned_steps = [], [], 0
     obs = type("O", (), {"step": 0, "pose": Pose2D(0.0, 4.5, 0.0)})()  # believed = true (1, 4.5)
     for k, (px, det, pts, *full) in enumerate(steps):
         a.oracle.px = px
@@ -201,9 +203,17 @@ def test_attribution_measures_the_pose_error_and_phantom_obstacles():
 
     a = attribution([(0, False, [])] * 2)
     assert a.finish({"success": False})["modiin"]["pose_error_m"] == {"max": 0.0, "final": 0.0}
-    a.on_step(type("O", (), {"step": 2, "pose": Pose2D(0.3, 4.9, 0.0)})(), None, Rec(False, []))  # 0.5 m off
+    off = Pose2D(0.3, 4.9, 0.0)  # 0.5 m off
+    a.on_step(type("O", (), {"step": 2, "pose": off})(), None, Rec(False, [], pose=off))
     out = a.finish({"success": False})["modiin"]
     assert out["pose_error_m"] == {"max": 0.5, "final": 0.5} and out["ghost_obstacle_cells"] is None  # no map
+    assert out["aligned_steps"] == 0 and out["yaw_error_deg"]["max"] == 0.0
+    # the agent aligned this frame (its record's pose differs from the estimate it was given): the
+    # error is the belief's, and the step is counted
+    a.on_step(type("O", (), {"step": 3, "pose": off})(), None, Rec(False, [], pose=Pose2D(0.0, 4.5, math.radians(2.0))))
+    out = a.finish({"success": False})["modiin"]
+    assert out["pose_error_m"]["final"] == 0.0 and out["aligned_steps"] == 1
+    assert out["yaw_error_deg"]["max"] == pytest.approx(2.0)
     # the true world: open floor x, y in [0, 6) but a wall along x < 1; the map: one obstacle cell
     # on the wall (real), one in the open (a ghost), one just beside the wall (within the clearance)
     nav = np.ones((120, 120), bool)
@@ -215,7 +225,7 @@ def test_attribution_measures_the_pose_error_and_phantom_obstacles():
     z = np.zeros_like(obstacle)
     rec = Rec(False, [])
     rec.map = MapSnapshot(0.05, (-1.0, 0.0), obstacle, z, z, z, z, z, z)
-    a.on_step(type("O", (), {"step": 3, "pose": Pose2D(0.0, 4.5, 0.0)})(), None, rec)
+    a.on_step(type("O", (), {"step": 4, "pose": Pose2D(0.0, 4.5, 0.0)})(), None, rec)
     assert a.finish({"success": False})["modiin"]["ghost_obstacle_cells"] == 1
 
 
