@@ -13,7 +13,9 @@ PORT ?= 8000
 # pytest-xdist workers: one per logical CPU (on a 2-core machine: 2). --dist loadgroup is
 # tests/conftest.py's scheduling: each test its own work unit, except a module with a
 # module-scoped fixture, whose tests share one worker (the fixture built once). Before it, each
-# test alone ran pytest in 315-356 s in CI, --dist load in 368-381 s, loadfile 342 s.
+# test alone ran pytest in 315-356 s in CI, --dist load in 368-381 s, loadfile 342 s. A third
+# worker on two cores does not fill the waits: -n 3 took 394 s (just before 7584db5; the slow tests 1.5-2x
+# slower each) against 357 s for -n 2 in the CI run before it (not back to back).
 WORKERS ?= logical
 PYTEST := $(BIN)/python -m pytest
 LINT_PATHS := agent sim robot console benchmarks tests
