@@ -127,14 +127,8 @@ def align_frame(
     hh, ww = dist.shape
     step = res / f
 
-    n_yaw = int(round(cfg.max_yaw_deg / cfg.yaw_step_deg))
-    yaws = np.radians(np.arange(-n_yaw, n_yaw + 1) * cfg.yaw_step_deg)
-    n_sh = int(round(cfg.max_shift_m / cfg.shift_step_m))
-    s = np.arange(-n_sh, n_sh + 1) * cfg.shift_step_m
-    sx, sy = (a.reshape(-1) for a in np.meshgrid(s, s))  # (S,)
-    scores = np.empty((len(yaws), len(sx)))
-    inliers = np.empty((len(yaws), len(sx)))
-    for k, dyaw in enumerate(yaws):
+    def score(dyaw: float, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean capped distance (cells) and inlier share of the scan at each shift, turned by dyaw."""
         c, si = math.cos(pose.yaw_rad + dyaw), math.sin(pose.yaw_rad + dyaw)
         x = pose.x_m + c * pts[:, 0] - si * pts[:, 1]
         y = pose.y_m + si * pts[:, 0] + c * pts[:, 1]
@@ -143,8 +137,26 @@ def align_frame(
         np.clip(jj, 0, ww - 1, out=jj)
         np.clip(ii, 0, hh - 1, out=ii)
         d = dist[ii, jj]  # (S, N)
-        scores[k] = d.mean(axis=1)
-        inliers[k] = (d <= 1.0).mean(axis=1)
+        return d.mean(axis=1), (d <= 1.0).mean(axis=1)
+
+    # no pose scores below 0, so an estimate within the gain of 0 stands without a search
+    zero = np.zeros(1)
+    est_cells, est_share = score(0.0, zero, zero)
+    if float(est_cells[0]) * res < cfg.min_gain_m:
+        est = float(est_cells[0]) * res
+        share0 = float(est_share[0])
+        return Alignment(
+            pose, False, score_m=est, estimate_score_m=est, inlier_share=share0, estimate_inlier_share=share0
+        )
+    n_yaw = int(round(cfg.max_yaw_deg / cfg.yaw_step_deg))
+    yaws = np.radians(np.arange(-n_yaw, n_yaw + 1) * cfg.yaw_step_deg)
+    n_sh = int(round(cfg.max_shift_m / cfg.shift_step_m))
+    s = np.arange(-n_sh, n_sh + 1) * cfg.shift_step_m
+    sx, sy = (a.reshape(-1) for a in np.meshgrid(s, s))  # (S,)
+    scores = np.empty((len(yaws), len(sx)))
+    inliers = np.empty((len(yaws), len(sx)))
+    for k, dyaw in enumerate(yaws):
+        scores[k], inliers[k] = score(float(dyaw), sx, sy)
     k0, s0 = n_yaw, len(sx) // 2  # the estimate: no rotation, no shift
     est, best = float(scores[k0, s0]) * res, float(scores.min()) * res
     share0 = float(inliers[k0, s0])
