@@ -30,9 +30,11 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 from scipy import ndimage
@@ -47,6 +49,8 @@ from sim.metrics import EpisodeMetrics
 from sim.navigation import GRID_RESOLUTION_M, geodesic_at, geodesic_field, instance_viewpoints, reachable_component
 from sim.scene_gen import GENERATOR_VERSION
 from sim.world import SimWorld
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -293,6 +297,54 @@ def _worker(args: tuple[str, int, int, str, EpisodeGenConfig]) -> list[Episode]:
     return _scene_episodes(split, set_seed, k, Path(out_dir), cfg)
 
 
+def collect_scenes(
+    worker: Callable[[tuple[str, int, int, str, Any]], list[T]],
+    job: tuple[str, int, Path, Any],
+    count: int,
+    per_scene: int,
+    workers: int,
+    progress: bool,
+    what: str,
+) -> list[T]:
+    """The first ``count`` items (episodes, sequences) that ``worker`` makes from the scenes 0, 1, ...
+    of ``job`` = (split, set seed, output folder, generator config), at most ``per_scene`` from a
+    scene (a scene may give fewer), in scene order whatever the number of ``workers``."""
+    from tqdm import tqdm
+
+    split, seed, out, cfg = job
+    (out / "goals").mkdir(parents=True, exist_ok=True)
+    items: list[T] = []
+    bar = tqdm(total=count, desc=f"{split} {what}", unit=what, disable=not progress)
+    k = 0
+    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
+    try:
+        while len(items) < count:
+            need = count - len(items)
+            batch = max(1, min(workers, math.ceil(need / per_scene)))
+            jobs = [(split, seed, k + i, str(out), cfg) for i in range(batch)]
+            results = list(pool.map(worker, jobs)) if pool else [worker(jobs[0])]
+            k += len(results)
+            for made in results:  # in scene order: the set does not depend on the worker count
+                take = made[: count - len(items)]
+                items += take
+                bar.update(len(take))
+            if k > 50 + 3 * count:
+                raise RuntimeError(f"only {len(items)} {what} from {k} scenes; something is wrong")
+    finally:
+        bar.close()
+        if pool:
+            pool.shutdown()
+    return items
+
+
+def prune_goal_images(out: Path, keep: set[str]) -> None:
+    """Remove the goal images in ``out/goals`` that no kept item uses (``keep``: ``goals/<name>.png``):
+    those of items past the count, or stale ones."""
+    for png in (out / "goals").glob("*.png"):
+        if f"goals/{png.name}" not in keep:
+            png.unlink()
+
+
 def generate_episode_set(
     split: str,
     seed: int,
@@ -303,35 +355,10 @@ def generate_episode_set(
     progress: bool = True,
 ) -> list[Episode]:
     """Generate ``count`` episodes into ``out_dir`` (episodes.json + goals/*.png)."""
-    from tqdm import tqdm
-
     out = Path(out_dir)
-    (out / "goals").mkdir(parents=True, exist_ok=True)
-    episodes: list[Episode] = []
-    bar = tqdm(total=count, desc=f"{split} episodes", unit="ep", disable=not progress)
-    k = 0
-    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
-    try:
-        while len(episodes) < count:
-            need = count - len(episodes)
-            batch = max(1, min(workers, math.ceil(need / cfg.episodes_per_scene)))
-            jobs = [(split, seed, k + i, str(out), cfg) for i in range(batch)]
-            results = list(pool.map(_worker, jobs)) if pool else [_worker(jobs[0])]
-            k += len(results)
-            for eps in results:  # in scene order: the set does not depend on the worker count
-                take = eps[: count - len(episodes)]
-                episodes += take
-                bar.update(len(take))
-            if k > 50 + 3 * count:
-                raise RuntimeError(f"only {len(episodes)} episodes from {k} scenes; something is wrong")
-    finally:
-        bar.close()
-        if pool:
-            pool.shutdown()
-    keep = {e.goal_image for e in episodes}
-    for png in (out / "goals").glob("*.png"):  # goal images of episodes past the count, or stale
-        if f"goals/{png.name}" not in keep:
-            png.unlink()
+    job = (split, seed, out, cfg)
+    episodes = collect_scenes(_worker, job, count, cfg.episodes_per_scene, workers, progress, "episodes")
+    prune_goal_images(out, {e.goal_image for e in episodes})
     meta = {
         "generator_version": GENERATOR_VERSION,
         "count": len(episodes),

@@ -29,14 +29,23 @@ from __future__ import annotations
 
 import logging
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from agent.types import Pose2D
-from sim.episode_gen import EpisodeGenConfig, HomeFloor, StartPick, goal_order, home_floor, oracle_run, pick_start
+from sim.episode_gen import (
+    EpisodeGenConfig,
+    HomeFloor,
+    StartPick,
+    collect_scenes,
+    goal_order,
+    home_floor,
+    oracle_run,
+    pick_start,
+    prune_goal_images,
+)
 from sim.episodes import SPLITS, r4, scene_seed_for, write_rgb
 from sim.goals import GoalImage, sample_goal_images
 from sim.navigation import geodesic_at, geodesic_field, instance_viewpoints
@@ -310,37 +319,12 @@ def generate_sequence_set(
     progress: bool = True,
 ) -> list[SequenceEpisode]:
     """Generate ``count`` sequences of ``cfg.goals`` goals into ``out_dir`` (episodes.json + goals/*.png)."""
-    from tqdm import tqdm
-
     if cfg.goals < 2:
         raise ValueError("a multi-goal set needs at least 2 goals per sequence (1 goal: generate_episode_set)")
     out = Path(out_dir)
-    (out / "goals").mkdir(parents=True, exist_ok=True)
-    sequences: list[SequenceEpisode] = []
-    bar = tqdm(total=count, desc=f"{split} sequences", unit="seq", disable=not progress)
-    k = 0
-    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
-    try:
-        while len(sequences) < count:
-            need = count - len(sequences)
-            batch = max(1, min(workers, math.ceil(need / cfg.sequences_per_scene)))
-            jobs = [(split, seed, k + i, str(out), cfg) for i in range(batch)]
-            results = list(pool.map(_worker, jobs)) if pool else [_worker(jobs[0])]
-            k += len(results)
-            for seqs in results:  # in scene order: the set does not depend on the worker count
-                take = seqs[: count - len(sequences)]
-                sequences += take
-                bar.update(len(take))
-            if k > 50 + 3 * count:
-                raise RuntimeError(f"only {len(sequences)} sequences from {k} scenes; something is wrong")
-    finally:
-        bar.close()
-        if pool:
-            pool.shutdown()
-    keep = {g.goal_image for s in sequences for g in s.goals}
-    for png in (out / "goals").glob("*.png"):  # goal images of sequences past the count, or stale
-        if f"goals/{png.name}" not in keep:
-            png.unlink()
+    job = (split, seed, out, cfg)
+    sequences = collect_scenes(_worker, job, count, cfg.sequences_per_scene, workers, progress, "sequences")
+    prune_goal_images(out, {g.goal_image for s in sequences for g in s.goals})
     meta = {
         "generator_version": GENERATOR_VERSION,
         "goals_per_episode": cfg.goals,
