@@ -1,7 +1,5 @@
 """One real simulated episode end to end with the Mod-IIN agent (PyBullet, real renders)."""
 
-import argparse
-
 import numpy as np
 import pytest
 
@@ -13,6 +11,7 @@ from sim.backend import SimBackend
 from sim.episode_gen import generate_episode_set
 from sim.episodes import load_episode_set, save_episode_set
 from sim.world import SimWorld
+from tests.helpers.eval_args import modiin_args
 
 
 @pytest.fixture(scope="module")
@@ -87,18 +86,7 @@ def test_eval_plugin_runs_an_episode(episode, tmp_path):
     from sim.evaluation.runner import run_evaluation
 
     es, ep, _ = episode
-    args = argparse.Namespace(
-        modiin_config="sim",
-        modiin_reid="oracle",
-        modiin_loc="oracle",
-        modiin_matcher=None,
-        modiin_tau=None,
-        modiin_set=["policy.look_around_turns=0"],
-        modiin_oracle_min_px=400,
-        modiin_seen_px=2300,
-        modiin_threads=1,
-        workers=1,
-    )
+    args = modiin_args(modiin_reid="oracle", modiin_loc="oracle", modiin_set=["policy.look_around_turns=0"])
     summary = run_evaluation(es.directory, "modiin", args, tmp_path, limit=1, progress=False, fail_fast=True)
     assert summary["episodes"] == 1 and "failure_causes" in summary and "table_md" in summary
 

@@ -1,4 +1,3 @@
-import argparse
 import math
 
 import numpy as np
@@ -6,23 +5,11 @@ import pytest
 
 from agent.types import Pose2D
 from sim.evaluation.modiin import Attribution, build_config, failure_distribution, summarize, table_row
+from tests.helpers.eval_args import modiin_args
 
 
 def ns(**kw):
-    base = dict(
-        modiin_config="sim",
-        modiin_reid="conf",
-        modiin_loc="mask",
-        modiin_matcher=None,
-        modiin_tau=None,
-        modiin_set=[],
-        modiin_oracle_min_px=400,
-        modiin_seen_px=2300,
-        modiin_threads=None,
-        workers=2,
-    )
-    base.update(kw)
-    return argparse.Namespace(**base)
+    return modiin_args(**{"modiin_threads": None, "workers": 2, **kw})
 
 
 def test_variants_map_to_config():

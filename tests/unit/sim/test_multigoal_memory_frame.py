@@ -23,6 +23,7 @@ from sim.realism import Realism, get_profile
 from sim.sequences import SequenceEpisode, SequenceGoal
 from sim.simple_homes import box_object, room_home
 from sim.world import SimWorld
+from tests.helpers.eval_args import modiin_args
 
 GOAL_IMAGE = np.full((64, 64, 3), 128, np.uint8)
 COUCH_XY = (5.0, 2.0)  # instance 0, footprint x 4.6..5.4, y 1.2..2.8
@@ -43,21 +44,6 @@ def world():
     )
     yield w
     w.close()
-
-
-def _modiin_args() -> argparse.Namespace:
-    return argparse.Namespace(
-        modiin_config="sim",
-        modiin_reid="conf",
-        modiin_loc="mask",
-        modiin_matcher=None,
-        modiin_tau=None,
-        modiin_set=[],
-        modiin_oracle_min_px=400,
-        modiin_seen_px=2300,
-        modiin_threads=1,
-        workers=1,
-    )
 
 
 def _snapshot(points_xy: np.ndarray, res: float = 0.05) -> MapSnapshot:
@@ -89,7 +75,7 @@ def test_a_later_subtasks_attribution_reads_the_agent_in_the_memorys_frame(world
         realism=NOISY,
         frame_origin=origin,
     )
-    a = Attribution(_modiin_args(), SimpleNamespace(goal_instance_id=0), b.oracle)
+    a = Attribution(modiin_args(), SimpleNamespace(goal_instance_id=0), b.oracle)
     obs = b.reset()
     assert obs.pose == origin  # the belief goes on in the memory's frame, not at (0, 0, 0)
 
