@@ -15,7 +15,8 @@ PORT ?= 8000
 # module-scoped fixture, whose tests share one worker (the fixture built once). Before it, each
 # test alone ran pytest in 315-356 s in CI, --dist load in 368-381 s, loadfile 342 s. A third
 # worker on two cores does not fill the waits: -n 3 took 394 s (just before 7584db5; the slow tests 1.5-2x
-# slower each) against 357 s for -n 2 in the CI run before it (not back to back).
+# slower each) against 357 s for -n 2 in the CI run before it (not back to back); back to back on a
+# quiet machine (at 191ffcc) 275.1 s against 283.7 s, with 6% more CPU: within noise, so two stay.
 WORKERS ?= logical
 # Bytecode (and pytest's rewritten test modules) cached in the venv, outside the sources, even
 # where PYTHONDONTWRITEBYTECODE is set: without it every worker rewrites and compiles the ~100
