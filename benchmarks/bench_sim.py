@@ -46,6 +46,7 @@ from agent.types import Action, Pose2D  # noqa: E402
 from sim.backend import SimBackend  # noqa: E402
 from sim.camera import SIM_CAMERA, CameraSpec, Render, camera_axes, depth_buffer_to_metres, rgba_to_rgb  # noqa: E402
 from sim.episodes import scene_seed_for  # noqa: E402
+from sim.render_reference import depth_plain, render_plain  # noqa: E402
 from sim.world import _LIGHT, SimWorld  # noqa: E402
 
 T = TypeVar("T")
@@ -155,39 +156,12 @@ def _timed(parts: dict[str, list[float]], name: str, fn: Callable[[], T]) -> T:
     return out
 
 
-def _old_depth(buf: np.ndarray, near_m: float, far_m: float) -> np.ndarray:
-    """``depth_buffer_to_metres`` before issue 32 (temporaries)."""
-    buf = np.asarray(buf, dtype=np.float64)
-    depth = far_m * near_m / (far_m - (far_m - near_m) * buf)
-    depth[buf >= 1.0 - 1e-7] = 0.0
-    return depth.astype(np.float32)
-
-
 def _render_view_before(
     world: SimWorld, eye_xyz: tuple | np.ndarray, yaw_rad: float, pitch_rad: float, camera: CameraSpec
 ) -> Render:
-    """``SimWorld.render_view`` before issue 32: no reuse, matrices every frame, a strided RGB copy."""
-    eye = np.asarray(eye_xyz, dtype=np.float64)
-    world._show(world._visible((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera))
-    forward, up = camera_axes(yaw_rad, pitch_rad)
-    c = world._client
-    view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=c)
-    proj = pb.computeProjectionMatrixFOV(
-        camera.vfov_deg, camera.width_px / camera.height_px, camera.near_m, camera.far_m, physicsClientId=c
-    )
-    w, h, rgba, depth, seg = pb.getCameraImage(
-        camera.width_px,
-        camera.height_px,
-        view,
-        proj,
-        renderer=pb.ER_TINY_RENDERER,
-        shadow=0,
-        physicsClientId=c,
-        **_LIGHT,
-    )
-    rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
-    depth_m = _old_depth(np.asarray(depth, dtype=np.float32).reshape(h, w), camera.near_m, camera.far_m)
-    return Render(rgb, depth_m, np.asarray(seg).reshape(h, w), world._seg_lut)
+    """``SimWorld.render_view`` before issue 32 (``sim.render_reference``)."""
+    rgb, depth_m, seg = render_plain(world, eye_xyz, yaw_rad, pitch_rad, camera)
+    return Render(rgb, depth_m, seg, world._seg_lut)
 
 
 def _replays(count: int) -> list[dict]:
@@ -264,7 +238,7 @@ def _parts_of_frame(
         dm = _timed(
             before,
             "depth",
-            lambda: _old_depth(np.asarray(depth, dtype=np.float32).reshape(h, w), cam.near_m, cam.far_m),
+            lambda: depth_plain(np.asarray(depth, dtype=np.float32).reshape(h, w), cam.near_m, cam.far_m),
         )
         r = Render(rgb, dm, np.asarray(seg).reshape(h, w), world._seg_lut)
         _timed(before, "goal mask", lambda: r.instance_ids == goal)

@@ -42,7 +42,7 @@ from scipy import ndimage
 from agent.types import Pose2D
 from sim.episodes import SPLITS, Episode, r4, save_episode_set, scene_seed_for, write_rgb
 from sim.geometry import NavGrid
-from sim.goals import sample_goal_images
+from sim.goals import GoalImage, sample_goal_images
 from sim.home import HomeSpec, Room
 from sim.lattice import LatticePlan, ViewpointGoal, plan_to_goal
 from sim.metrics import EpisodeMetrics
@@ -128,14 +128,7 @@ def _generate(
             "goal_variant": obj.variant,
             "euclidean_distance_m": r4(min(math.hypot(pose.x_m - x, pose.y_m - y) for x, y in vp)),
             "lattice_path_m": r4(plan.path_length_m),
-            "goal_camera": {
-                "eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m],
-                "yaw_rad": r4(gi.camera.yaw_rad),
-                "pitch_rad": r4(gi.camera.pitch_rad),
-                "hfov_deg": r4(gi.camera.hfov_deg),
-            },
-            "goal_coverage": r4(gi.coverage),
-            "goal_shows_distractor": gi.shows_distractor,
+            **goal_image_info(gi),
         }
         episodes.append(
             Episode(
@@ -295,6 +288,20 @@ def oracle_run(
 def _worker(args: tuple[str, int, int, str, EpisodeGenConfig]) -> list[Episode]:
     split, set_seed, k, out_dir, cfg = args
     return _scene_episodes(split, set_seed, k, Path(out_dir), cfg)
+
+
+def goal_image_info(gi: GoalImage) -> dict:
+    """What an episode's ``info`` records of its goal photo: the camera, coverage, distractor."""
+    return {
+        "goal_camera": {
+            "eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m],
+            "yaw_rad": r4(gi.camera.yaw_rad),
+            "pitch_rad": r4(gi.camera.pitch_rad),
+            "hfov_deg": r4(gi.camera.hfov_deg),
+        },
+        "goal_coverage": r4(gi.coverage),
+        "goal_shows_distractor": gi.shows_distractor,
+    }
 
 
 def collect_scenes(

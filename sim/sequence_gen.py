@@ -40,6 +40,7 @@ from sim.episode_gen import (
     HomeFloor,
     StartPick,
     collect_scenes,
+    goal_image_info,
     goal_order,
     home_floor,
     oracle_run,
@@ -216,18 +217,10 @@ def _sequence(
 def _goal_info(home: _Home, pick: _Pick) -> dict:
     obj = home.world.home.instance(pick.instance_id)
     room = home.world.home.room_at(*obj.center_xyz_m()[:2])
-    gi = pick.image
     info = {
         "goal_room": room.name if room else None,
         "goal_variant": obj.variant,
-        "goal_camera": {
-            "eye_xyz_m": [r4(v) for v in gi.camera.eye_xyz_m],
-            "yaw_rad": r4(gi.camera.yaw_rad),
-            "pitch_rad": r4(gi.camera.pitch_rad),
-            "hfov_deg": r4(gi.camera.hfov_deg),
-        },
-        "goal_coverage": r4(gi.coverage),
-        "goal_shows_distractor": gi.shows_distractor,
+        **goal_image_info(pick.image),
     }
     if pick.chain_geodesic_m is not None:
         # the shortest path from where the oracle agent ended the previous goal (an agent's own

@@ -12,47 +12,27 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as pb
 import pytest
 
 from agent.types import Action, Pose2D
 from sim.backend import SimBackend
-from sim.camera import SIM_CAMERA, CameraSpec, camera_axes
+from sim.camera import SIM_CAMERA, CameraSpec
 from sim.episodes import scene_seed_for
+from sim.render_reference import render_plain
 from sim.scene_gen import generate_home
-from sim.world import _LIGHT, SimWorld
+from sim.world import SimWorld
 
 
 def _render_before(
     world: SimWorld, eye_xyz: tuple[float, float, float], yaw_rad: float, pitch_rad: float, camera: CameraSpec
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The render of ``SimWorld.render_view`` before issue 32: (rgb, depth_m, instance_ids)."""
-    eye = np.asarray(eye_xyz, dtype=np.float64)
-    world._show(world._visible((float(eye[0]), float(eye[1])), yaw_rad, pitch_rad, camera))
-    forward, up = camera_axes(yaw_rad, pitch_rad)
-    client = world._client
-    view = pb.computeViewMatrix(eye.tolist(), (eye + forward).tolist(), up.tolist(), physicsClientId=client)
-    proj = pb.computeProjectionMatrixFOV(
-        camera.vfov_deg, camera.width_px / camera.height_px, camera.near_m, camera.far_m, physicsClientId=client
-    )
-    w, h, rgba, depth, seg = pb.getCameraImage(
-        camera.width_px,
-        camera.height_px,
-        view,
-        proj,
-        renderer=pb.ER_TINY_RENDERER,
-        shadow=0,
-        physicsClientId=client,
-        **_LIGHT,
-    )
-    rgb = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3].copy()
-    buf = np.asarray(np.asarray(depth, dtype=np.float32).reshape(h, w), dtype=np.float64)
-    depth_m = camera.far_m * camera.near_m / (camera.far_m - (camera.far_m - camera.near_m) * buf)
-    depth_m[buf >= 1.0 - 1e-7] = 0.0
-    raw = np.asarray(seg, np.int64).reshape(h, w)
+    """The render of ``SimWorld.render_view`` before issue 32: (rgb, depth_m, instance_ids), the
+    ids through the look-up table as the render did then."""
+    rgb, depth_m, seg = render_plain(world, eye_xyz, yaw_rad, pitch_rad, camera)
+    raw = np.asarray(seg, np.int64)
     lut = world._seg_lut
     ids = lut[np.where((raw >= -1) & (raw < len(lut) - 1), raw, -1) + 1]
-    return rgb, depth_m.astype(np.float32), ids
+    return rgb, depth_m, ids
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
