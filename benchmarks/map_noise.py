@@ -96,15 +96,21 @@ def main() -> int:
         action="store_true",
         help="place the noisy maps at the records' believed poses (poses_estimate_world)",
     )
+    ap.add_argument("--episode", action="append", default=[], help="only this episode id (repeatable)")
+    ap.add_argument(
+        "--setting", action="append", default=[], help="only the settings whose name contains this (repeatable)"
+    )
     args = ap.parse_args()
+    settings = {k: v for k, v in SETTINGS.items() if not args.setting or any(s in k for s in args.setting)}
+    exact_settings = {k: v for k, v in EXACT_SETTINGS.items() if not args.setting or any(s in k for s in args.setting)}
     es = load_episode_set(args.episodes)
     by_id = {e.episode_id: e for e in es.episodes}
     model = PROFILES["stretch"].depth
     assert model is not None
-    totals = {name: [0, []] for name in [*SETTINGS, *EXACT_SETTINGS]}  # ghosts, found shares
+    totals = {name: [0, []] for name in [*settings, *exact_settings]}  # ghosts, found shares
     for rec in read_records(Path(args.eval)):
         ep = by_id.get(rec["episode_id"])
-        if ep is None:
+        if ep is None or (args.episode and ep.episode_id not in args.episode):
             continue
         rng = np.random.default_rng([args.seed, ep.scene_seed])
         world = SimWorld.from_seed(ep.scene_seed)
@@ -117,8 +123,8 @@ def main() -> int:
         poses = [Pose2D(*p) for p in traj["poses_world"]][:: args.every][: args.max_frames]
         believed = [Pose2D(*p) for p in traj[believed_key]][:: args.every][: args.max_frames]
         exact = GridMap(UNFILTERED)
-        noisy = {name: GridMap(cfg) for name, cfg in SETTINGS.items()}
-        clean = {name: GridMap(cfg) for name, cfg in EXACT_SETTINGS.items()}
+        noisy = {name: GridMap(cfg) for name, cfg in settings.items()}
+        clean = {name: GridMap(cfg) for name, cfg in exact_settings.items()}
         for p, b in zip(poses, believed, strict=True):
             r = world.render(p, SIM_CAMERA)
             kw = dict(

@@ -81,6 +81,16 @@ def check_memory_option(value: str | None) -> str | None:
     raise OptionsError(f"memory must be 'on' or 'off', not {value!r}")
 
 
+def close_run(backend: Any, on_close: Callable[[], None] | None) -> None:
+    """A session's end: its backend closed, then ``on_close`` (the memory saved, the robot's run
+    finished), that one also when closing the backend failed."""
+    try:
+        backend.close()
+    finally:
+        if on_close is not None:
+            on_close()
+
+
 class RunSession(Protocol):
     """A backend and an agent, ready for one run.
 

@@ -28,7 +28,7 @@ from agent.types import Action, Agent, Pose2D
 from console.agents import build_agent
 from console.home_memory import HomeSlot
 from console.photos import dhash
-from console.session import Outcome
+from console.session import Outcome, close_run
 from console.sim_cache import WorldCache, kept_scoring, kept_start_render
 from console.sim_catalog import GalleryItem, HomeEntry, Start
 from sim.realism import Realism
@@ -223,11 +223,7 @@ class SimSession:
         return Outcome("success" if success else "failure", detail, metrics)
 
     def close(self) -> None:
-        try:
-            self.backend.close()
-        finally:
-            if self.on_close is not None:
-                self.on_close()
+        close_run(self.backend, self.on_close)
 
 
 def _metrics(result: Any) -> dict[str, Any]:

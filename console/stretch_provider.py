@@ -28,7 +28,7 @@ from agent.types import MAX_STEPS, Action, Agent, Backend
 from console.agents import build_agent
 from console.home_memory import HOME_KEY, HomeMemories, robot_key
 from console.options import RunForm, RunOptions, StretchRunOptions
-from console.session import OptionsError, Outcome, ResolvedRun, RunSession, check_memory_option
+from console.session import OptionsError, Outcome, ResolvedRun, RunSession, check_memory_option, close_run
 
 logger = logging.getLogger(__name__)
 
@@ -49,11 +49,7 @@ class StretchSession:
         return Outcome("unscored", "the step budget ran out (no ground truth on a real robot)")
 
     def close(self) -> None:
-        try:
-            self.backend.close()
-        finally:
-            if self.on_close is not None:
-                self.on_close()
+        close_run(self.backend, self.on_close)
 
 
 class StretchProvider:

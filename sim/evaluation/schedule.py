@@ -150,6 +150,30 @@ class Schedule:
         return home.queue.popleft()
 
 
+def simulate(
+    schedule: Schedule, unit_s: Mapping[str, float], build_s: Mapping[int, float], workers: int
+) -> tuple[list[float], list[list[tuple[int, str]]]]:
+    """Run ``schedule`` on ``workers`` simulated workers: unit ``u`` takes ``unit_s[u]``, a home
+    the worker does not hold ``build_s[h]`` more (0 when missing). Returns each worker's finishing
+    time and the (home, unit) it ran, in order."""
+    clock = [0.0] * workers
+    held: list[int | None] = [None] * workers
+    ran: list[list[tuple[int, str]]] = [[] for _ in range(workers)]
+    active = set(range(workers))
+    while active:
+        w = min(active, key=lambda k: (clock[k], k))  # the next worker to be free
+        unit = schedule.next_for(w)
+        if unit is None:
+            active.discard(w)
+            continue
+        if held[w] != unit.scene_seed:
+            clock[w] += build_s.get(unit.scene_seed, 0.0)
+            held[w] = unit.scene_seed
+        clock[w] += unit_s[unit.unit_id]
+        ran[w].append((unit.scene_seed, unit.unit_id))
+    return clock, ran
+
+
 def replay(
     units: Sequence[Unit],
     unit_s: Mapping[str, float],
@@ -165,19 +189,7 @@ def replay(
     (summed over workers, from running out of work, or never getting any, to the end)."""
     schedule = Schedule(units, policy)
     n = max(1, min(workers, schedule.max_parallel))
-    clock = [0.0] * n
-    held: list[int | None] = [None] * n
-    active = set(range(n))
-    while active:
-        w = min(active, key=lambda k: (clock[k], k))  # the next worker to be free
-        unit = schedule.next_for(w)
-        if unit is None:
-            active.discard(w)
-            continue
-        if held[w] != unit.scene_seed:
-            clock[w] += build_s.get(unit.scene_seed, 0.0)
-            held[w] = unit.scene_seed
-        clock[w] += unit_s[unit.unit_id]
+    clock, _ = simulate(schedule, unit_s, build_s, n)
     makespan = max(clock)
     busy = sum(unit_s[u.unit_id] for u in units)
     core_s = workers * makespan

@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from agent.types import Pose2D
 from console.api import create_app
 from console.context import Console, ConsoleConfig
+from console.store import FINAL_STATUSES as FINAL
 from console.stretch_provider import StretchProvider
 from console.viewer import ViewerConfig
 from robot.config import StretchConfig
@@ -20,8 +21,6 @@ from robot.fake_server import FakeKnobs, FakeStretch
 from robot.fake_world import BoxWorld
 from tests.helpers.console_testkit import encode
 from tests.helpers.polling import poll
-
-FINAL = ("finished", "stopped", "failed", "interrupted")
 
 
 def stretch_console(

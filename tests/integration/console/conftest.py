@@ -29,10 +29,16 @@ def sim_data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
-def live_console(sim_data_dir: Path, tmp_path: Path) -> Iterator[LiveServer]:
+def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
+    """A test's own data dir: the prepared simulator cache, no runs yet."""
     data = tmp_path / "data"
-    shutil.copytree(sim_data_dir / "sim", data / "sim")  # the prepared cache; runs start empty
-    server = LiveServer(sim_console(data, viewer=True))
+    shutil.copytree(sim_data_dir / "sim", data / "sim")
+    return data
+
+
+@pytest.fixture
+def live_console(data_dir: Path) -> Iterator[LiveServer]:
+    server = LiveServer(sim_console(data_dir, viewer=True))
     yield server
     server.close()
 

@@ -12,11 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from console.store import FINAL_STATUSES as FINAL
 from tests.helpers.console_live import ARTIFACTS, LiveServer, poll, sim_console
 
 pytestmark = pytest.mark.browser
-
-FINAL = ("finished", "stopped", "failed", "interrupted")
 
 # the memory panel's layout: its box, how far its content overflows it, the elements in it wider
 # than it, its buttons (Find it again, Forget) and the photos of the known objects (CSS px)

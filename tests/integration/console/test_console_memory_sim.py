@@ -5,7 +5,6 @@ a known object asked for again (``goal_from_run``) is the first request's photo,
 from __future__ import annotations
 
 import io
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,16 +14,8 @@ from PIL import Image
 
 from agent.types import Pose2D
 from console.api import create_app
+from console.store import FINAL_STATUSES as FINAL
 from tests.helpers.console_live import poll, sim_console
-
-FINAL = ("finished", "stopped", "failed", "interrupted")
-
-
-@pytest.fixture
-def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
-    data = tmp_path / "data"
-    shutil.copytree(sim_data_dir / "sim", data / "sim")
-    return data
 
 
 def run(client: TestClient, home: dict, start: str, max_steps: int, **options: str) -> dict:

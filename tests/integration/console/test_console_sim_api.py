@@ -13,16 +13,8 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from console.api import create_app
+from console.store import FINAL_STATUSES as FINAL
 from tests.helpers.console_live import ARTIFACTS, HOME_SEED, poll, sim_console
-
-FINAL = ("finished", "stopped", "failed", "interrupted")
-
-
-@pytest.fixture
-def data_dir(sim_data_dir: Path, tmp_path: Path) -> Path:
-    data = tmp_path / "data"
-    shutil.copytree(sim_data_dir / "sim", data / "sim")
-    return data
 
 
 @pytest.fixture

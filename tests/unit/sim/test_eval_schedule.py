@@ -14,6 +14,7 @@ from sim.evaluation.schedule import (
     Schedule,
     Unit,
     replay,
+    simulate,
     throughput,
     unit_cost,
 )
@@ -25,23 +26,8 @@ def _episode(eid: str, seed: int, path_m: float) -> Episode:
 
 
 def _simulate(schedule: Schedule, durations: dict[str, float], workers: int, build_s: float = 0.0):
-    """Run the schedule on ``workers`` simulated workers (each unit takes its duration, a home
-    the worker does not hold ``build_s`` more); returns each worker's finishing time and the
-    (home, unit) it ran, in order."""
-    clock = [0.0] * workers
-    held: list[int | None] = [None] * workers
-    ran: list[list[tuple[int, str]]] = [[] for _ in range(workers)]
-    active = set(range(workers))
-    while active:
-        w = min(active, key=lambda k: (clock[k], k))  # the next worker to be free
-        unit = schedule.next_for(w)
-        if unit is None:
-            active.discard(w)
-            continue
-        clock[w] += durations[unit.unit_id] + (build_s if held[w] != unit.scene_seed else 0.0)
-        held[w] = unit.scene_seed
-        ran[w].append((unit.scene_seed, unit.unit_id))
-    return clock, ran
+    """``simulate`` with every home (scene seeds 0-99 in these tests) taking ``build_s`` to build."""
+    return simulate(schedule, durations, dict.fromkeys(range(100), build_s), workers)
 
 
 def test_cost_grows_with_the_shortest_path_and_a_sequence_sums_its_goals() -> None:
