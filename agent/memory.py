@@ -6,12 +6,16 @@ Mod-IIN agent carries from one goal to the next:
 * the map (``agent.mapping.GridMap``): its geometry, i.e. obstacles, the visited area and
   collision marks, which plan every later goal's paths. What a search made belongs to the goal
   that made it and is cleared when the next goal begins: the goal layer and the two candidate
-  blacklists (a candidate rejected for the couch says nothing about the plant), and the explored
-  area with its given-up frontiers: "explored" means "looked over for this goal", and a room
-  looked over for the couch was not looked over for the plant. Carried over, it left a later
-  goal that the keyframes did not recall with no frontier from its first step: it stopped as
-  exhausted after a few dozen steps (3 of the first 12 later goals on valseq30,
-  docs/experiments/memory.md). A goal the keyframes recall is reached without exploring either way;
+  blacklists (a candidate rejected for the couch says nothing about the plant) and the given-up
+  frontiers. The explored area is carried over: a goal the keyframes did not recall is most
+  likely where no earlier goal looked, so its exploration starts at the edge of what was looked
+  over. But a room looked over for the couch was not looked over for the plant (the keyframes
+  keep one view per place and heading, and a far view may not score): when no frontier is left,
+  the agent forgets the carried area once and explores again (``ModIINAgent``, at its first
+  rescan). Carried over without that, it left later goals with no frontier from their first step:
+  they stopped as exhausted after a few dozen steps (3 of the first 12 later goals on valseq30);
+  cleared at every goal, later goals not recalled went as from nothing, or longer
+  (docs/experiments/memory.md). A goal the keyframes recall is reached without exploring either way;
 * keyframes: frames seen while searching, whatever the goal was, each kept as its keypoints,
   descriptors (float16), image size, the pose it was taken from, and each keypoint's 3D point in
   the run frame, lifted from that frame's depth exactly as the localiser lifts a live match
@@ -372,10 +376,10 @@ class HomeMemory:
         if self.grid is None:
             self.grid = GridMap(mapping)
         else:
-            # the goal cells, the rejected candidates and the search (explored area, given-up
-            # frontiers) belong to the goal that made them; the geometry stays (module docstring)
+            # the goal cells, the rejected candidates and the given-up frontiers belong to the goal
+            # that made them; the geometry and the explored area stay (module docstring)
             L = self.grid.layers
-            for layer in (L.goal, L.blacklist, L.potential_blacklist, L.explored, L.frontier_blacklist):
+            for layer in (L.goal, L.blacklist, L.potential_blacklist, L.frontier_blacklist):
                 layer[:] = False
         return self.grid
 

@@ -161,6 +161,8 @@ class ModIINAgent:
         self._state = PolicyState(rescan=RescanState(rescans_left=self.config.policy.max_rescans))
         self._record = None
         self._decision = None
+        # the explored area of earlier goals (``agent.memory``), forgotten at the first rescan
+        self._explored_carried = home is not None and bool(self.grid.layers.explored.any())
         if home is not None:
             self._recall(home)
 
@@ -472,6 +474,11 @@ class ModIINAgent:
                 self.grid.forgive_frontiers()
                 self.explorer.reset()
                 log.info("no reachable frontier: cleared collision marks and given-up frontiers, looking around again")
+                if self._explored_carried:
+                    # what earlier goals looked over was not looked over for this one (agent.memory)
+                    self.grid.layers.explored[:] = False
+                    self._explored_carried = False
+                    log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
                 r = RescanState(steps=0, rescans_left=r.rescans_left - 1)

@@ -8,6 +8,7 @@ stored features, the stored 3D points) without a learned model."""
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 
@@ -216,7 +217,7 @@ def test_the_memory_is_bounded_in_count_and_in_age():
     assert len(mem) == 0 and mem.grid is None and mem.goal_index == -1 and mem.goals == []
 
 
-def test_a_new_goal_keeps_the_maps_geometry_but_not_the_last_goals_search():
+def test_a_new_goal_keeps_the_maps_geometry_and_explored_area_but_not_the_last_goals_search():
     mem = HomeMemory()
     mapping = AgentConfig().mapping
     grid = mem.begin_goal(mapping)
@@ -230,12 +231,13 @@ def test_a_new_goal_keeps_the_maps_geometry_but_not_the_last_goals_search():
     grid.mark_visited((0.0, 0.0), (0.5, 0.0))
     grid.blacklist_disk((1.0, 1.0), 0.5, layer="frontier_blacklist")
     assert grid.layers.explored.any() and grid.layers.frontier_blacklist.any()
-    before = {n: getattr(grid.layers, n).copy() for n in ("obstacle", "visited", "collision")}
+    before = {n: getattr(grid.layers, n).copy() for n in ("obstacle", "visited", "collision", "explored")}
     assert mem.begin_goal(mapping) is grid
     L = grid.layers
     assert not (L.goal.any() or L.blacklist.any() or L.potential_blacklist.any())
-    # the last goal's search: what it looked over and the frontiers it gave up
-    assert not (L.explored.any() or L.frontier_blacklist.any())
+    # the frontiers the last goal gave up are its own; what it looked over stays (forgotten by
+    # the agent when no frontier is left: the test below)
+    assert not L.frontier_blacklist.any()
     assert all(np.array_equal(getattr(L, n), v) and v.any() for n, v in before.items())
     with pytest.raises(ValueError, match="mapping config"):
         mem.begin_goal(replace(mapping, resolution_m=0.1))
@@ -401,6 +403,43 @@ def test_a_goal_memory_has_nothing_for_looks_around_as_without_memory():
     b = run_goal(colour_agent(home), world, max_steps=3)
     assert home.goals[1].recalled_views == 0
     assert [r.mode for r in b] == ["look_around"] * 3
+
+
+@pytest.mark.slow  # whole policy runs, two goals
+def test_the_explored_area_of_earlier_goals_is_forgotten_once_when_no_frontier_is_left(caplog):
+    """Goal A (red) looks the room over. Goal B (yellow: nothing in the home) starts in A's
+    explored area; with the room looked over there is no frontier, and at the first rescan the
+    carried area is forgotten, once: B then explores the room again for itself, and at its later
+    rescans keeps what it looked over."""
+    world, red, _, green = room()
+    home = HomeMemory()
+    world.begin_goal(red, goal_image(PALETTE[0]))
+    run_goal(colour_agent(home), world)
+    carried = int(home.grid.layers.explored.sum())
+    assert carried > 0
+    world.begin_goal(green, goal_image(PALETTE[3]))
+    agent = colour_agent(home, look_around_turns=4, max_rescans=2, last_resort=False)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    assert int(agent.grid.layers.explored.sum()) == carried  # B starts in A's explored area
+    explored, modes = [], []
+    with caplog.at_level(logging.INFO, logger="agent.policy"):
+        for _ in range(300):
+            action = agent.act(obs)
+            modes.append(agent.last_record.mode)
+            explored.append(int(agent.grid.layers.explored.sum()))
+            world.apply(action)
+            if action == Action.STOP:
+                break
+            obs = world.observe()
+    assert modes[-1] == "exhausted"
+    first = modes.index("rescan")
+    assert explored[first] == 0 and all(e > 0 for e in explored[:first])  # forgotten there ...
+    starts = [i for i in range(1, len(modes)) if modes[i] == "rescan" and modes[i - 1] != "rescan"]
+    assert len(starts) == 2 and starts[0] == first
+    assert explored[starts[1]] > 0  # ... and only once: the second rescan keeps B's own area
+    assert "explore" in modes[first:]  # B explored the room again for itself
+    assert sum("forgot the explored area" in r.getMessage() for r in caplog.records) == 1
 
 
 @pytest.mark.slow  # whole policy runs, two goals
