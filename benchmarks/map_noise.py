@@ -46,6 +46,12 @@ SETTINGS: dict[str, MappingConfig] = {
         obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3, clear_max_range_m=5.0
     ),
     "+ evidence cap 10": MappingConfig(obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=10),
+    "+ evidence cap 3, depth to 3 m": MappingConfig(
+        obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3, max_depth_m=3.0
+    ),
+    "+ evidence cap 3, depth to 2 m": MappingConfig(
+        obstacle_min_points=3, depth_consistency=0.05, obstacle_evidence_cap=3, max_depth_m=2.0
+    ),
 }
 # settings also given exact depth at the true pose: what they cost where nothing is wrong
 EXACT_SETTINGS: dict[str, MappingConfig] = {
