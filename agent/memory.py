@@ -16,8 +16,7 @@ Mod-IIN agent carries from one goal to the next:
   they stopped as exhausted after a few dozen steps (3 of the first 12 later goals on valseq30);
   cleared at every goal, later goals not recalled went as from nothing, or longer
   (docs/experiments/memory.md). A goal the keyframes recall is reached without exploring either way;
-* keyframes: frames seen in any mode (searching, approaching, verifying), whatever the goal
-  was, each kept as its keypoints,
+* keyframes: frames seen while searching, whatever the goal was, each kept as its keypoints,
   descriptors (float16), image size, the pose it was taken from, and each keypoint's 3D point in
   the run frame, lifted from that frame's depth exactly as the localiser lifts a live match
   (``GoalLocaliser.keypoint_points``). A later goal is matched against them and localised from
@@ -265,7 +264,7 @@ class GoalSummary:
 class HomeMemory:
     """What the agent remembers of one home, in one odometry frame (see the module docstring).
 
-    ``begin_goal`` at each goal's start (the agent's ``reset``), ``offer`` each frame,
+    ``begin_goal`` at each goal's start (the agent's ``reset``), ``offer`` each searching frame,
     ``recall`` a new goal, ``note`` each step's record; ``clear`` forgets the home."""
 
     def __init__(self, config: MemoryConfig = MemoryConfig()) -> None:

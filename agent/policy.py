@@ -33,7 +33,7 @@ the decision and the next state. Rejected and unreachable candidates are blackli
 exploration resumes.
 
 The memory of a home (``agent.memory.HomeMemory``, issue 31): an agent made with
-``home_memory=`` keeps the map across goals, offers every frame to the memory as a
+``home_memory=`` keeps the map across goals, offers every searching frame to the memory as a
 keyframe, and at ``reset`` scores the new goal against the remembered keyframes first, so that
 a goal seen before becomes a candidate before the first step. Without one (the default) each
 ``reset`` starts from nothing, as in the paper.
@@ -242,10 +242,8 @@ class ModIINAgent:
             self.shortlist.offer(obs, result.gate_score if result.gate_score is not None else score)
         candidates = self._evaluate(self.localiser.candidates(self.grid, self.tau))
         timings["localisation"] = _ms(t)
-        if self.home_memory is not None and result is not None and result.features is not None:
-            # a keyframe for later goals: the features just extracted, each keypoint's 3D point;
-            # from every mode: the views on the way to a found object are the ones a request for
-            # it again (or for something beside it) needs most
+        if self.home_memory is not None and searching and result is not None and result.features is not None:
+            # a keyframe for later goals: the features just extracted, each keypoint's 3D point
             t = time.perf_counter()
             feats = result.features
             assert self.reid is not None  # it made the features
