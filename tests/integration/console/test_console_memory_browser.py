@@ -200,13 +200,18 @@ def test_the_memory_panel_shows_the_robots_home_and_why_it_was_dropped(browser, 
         items = page.locator("#memory-objects li").all_text_contents()
         assert len(items) == 1 and items[0].startswith("request 1: ") and items[0].endswith("Find it again"), items
 
-        # "Find it again" on the robot: from memory, with the first request's photo (stopped at once)
+        # "Find it again" on the robot: from memory, with the first request's photo (stopped after a step)
         page.click("#memory-objects li[data-request='1'] button.memory-again")
         poll(lambda: page.is_enabled("#stop"), bool, 60, "run from memory active")
         problems = check_page(page)  # while the page shows the run active
         assert not problems, problems
         again = httpx.get(f"{server.url}/api/runs").json()["runs"][0]
         assert again["goal"]["from_run"] == first and again["options"]["home"] == home, again
+        # stopped after its first step, so that it is the run that last left the robot (a stop
+        # before any step leaves the memory's last pose, and the drop's words, with the first run)
+        poll(
+            lambda: httpx.get(f"{server.url}/api/runs/{again['id']}").json()["n_steps"], lambda n: n >= 1, 60, "a step"
+        )
         page.click("#stop")
         poll(
             lambda: httpx.get(f"{server.url}/api/runs/{again['id']}").json()["status"], lambda s: s in FINAL, 300, "end"
