@@ -67,7 +67,7 @@ class PolicyConfig:
     # failed moves near an object leave bands that can wall in its stop region
     unreachable_forgive: int = 1
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
-    max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
+    max_rescans: int = 3  # forgiving look-arounds (counted as each starts) before stopping as "exhausted"
     # when exploration is exhausted, go to the rejected candidate with the best evidence (highest
     # re-ID score of its views) and stop there, trusted, instead of stopping where the robot
     # stands: with nothing left to explore, the best rejected guess beats any other spot

@@ -467,9 +467,14 @@ class ModIINAgent:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
+        # A rescan is paid for when it starts: the forgiving usually opens a frontier at once,
+        # exploration takes over, and a rescan counted only when its turns were done was never
+        # counted, so the forgiving repeated without end (clean val-s0-0015-0: 726 steps on one
+        # spot, the same frontier chosen, walled in and forgiven every 12 steps).
         r = self._state.rescan
-        if r.rescans_left > 0:
+        if r.rescans_left > 0 or r.steps > 0:
             if r.steps == 0:
+                r = replace(r, rescans_left=r.rescans_left - 1)
                 self.grid.forgive_collisions()
                 self.grid.forgive_frontiers()
                 self.explorer.reset()
@@ -480,10 +485,8 @@ class ModIINAgent:
                     self._explored_carried = False
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
-            if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = RescanState(steps=0, rescans_left=r.rescans_left - 1)
-            else:
-                r = replace(r, steps=steps)
+            done = steps >= self.config.policy.look_around_turns or steps >= 12
+            r = replace(r, steps=0 if done else steps)
             self._set(rescan=r)
             return Decision(Action.TURN_LEFT, Mode.RESCAN, Event.RESCAN, planner_error=error or "no_frontier")
         if self.config.policy.last_resort:
