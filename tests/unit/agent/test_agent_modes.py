@@ -358,4 +358,3 @@ def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
         c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates
     )
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
-
