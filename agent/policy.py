@@ -467,14 +467,17 @@ class ModIINAgent:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
-        # A rescan is paid for when it starts: the forgiving usually opens a frontier at once,
-        # exploration takes over, and a rescan counted only when its turns were done was never
-        # counted, so the forgiving repeated without end (clean val-s0-0015-0: 726 steps on one
-        # spot, the same frontier chosen, walled in and forgiven every 12 steps).
+        # A rescan cut short by the frontier its forgiving opened is counted when the next one
+        # begins, unless new floor was explored in between (``rescan_new_ground_m2``).
         r = self._state.rescan
-        if r.rescans_left > 0 or r.steps > 0:
+        if r.steps == 0 and r.pending_explored is not None:
+            new_m2 = (int(self.grid.layers.explored.sum()) - r.pending_explored) * self.grid.resolution_m**2
+            if new_m2 < self.config.policy.rescan_new_ground_m2:
+                r = replace(r, rescans_left=r.rescans_left - 1)  # the one cut short led nowhere new
+            r = replace(r, pending_explored=None)
+            self._set(rescan=r)
+        if r.rescans_left > 0:
             if r.steps == 0:
-                r = replace(r, rescans_left=r.rescans_left - 1)
                 self.grid.forgive_collisions()
                 self.grid.forgive_frontiers()
                 self.explorer.reset()
@@ -484,9 +487,12 @@ class ModIINAgent:
                     self.grid.layers.explored[:] = False
                     self._explored_carried = False
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
+                r = replace(r, pending_explored=int(self.grid.layers.explored.sum()))
             steps = r.steps + 1
-            done = steps >= self.config.policy.look_around_turns or steps >= 12
-            r = replace(r, steps=0 if done else steps)
+            if steps >= self.config.policy.look_around_turns or steps >= 12:
+                r = RescanState(steps=0, rescans_left=r.rescans_left - 1)
+            else:
+                r = replace(r, steps=steps)
             self._set(rescan=r)
             return Decision(Action.TURN_LEFT, Mode.RESCAN, Event.RESCAN, planner_error=error or "no_frontier")
         if self.config.policy.last_resort:
