@@ -67,12 +67,7 @@ class PolicyConfig:
     # failed moves near an object leave bands that can wall in its stop region
     unreachable_forgive: int = 1
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
-    max_rescans: int = 3  # forgiving look-arounds before stopping as "exhausted"
-    # A rescan is counted when its turns are done; one cut short (its forgiving opened a frontier
-    # and exploration took over) is counted when the next begins, unless at least this much new
-    # floor was explored in between: forgiving that leads somewhere may repeat, forgiving that
-    # walls the robot in again on the same spot may not (clean val-s0-0015-0: 726 steps there)
-    rescan_new_ground_m2: float = 1.0
+    max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
     # when exploration is exhausted, go to the rejected candidate with the best evidence (highest
     # re-ID score of its views) and stop there, trusted, instead of stopping where the robot
     # stands: with nothing left to explore, the best rejected guess beats any other spot

@@ -118,9 +118,6 @@ class VerifyState:
 class RescanState:
     steps: int = 0  # turns of the current rescan
     rescans_left: int = 3
-    # explored cells when the last rescan began, while that rescan is not counted yet (it was cut
-    # short: its forgiving opened a frontier at once); None: nothing pending
-    pending_explored: int | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -467,15 +467,7 @@ class ModIINAgent:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
-        # A rescan cut short by the frontier its forgiving opened is counted when the next one
-        # begins, unless new floor was explored in between (``rescan_new_ground_m2``).
         r = self._state.rescan
-        if r.steps == 0 and r.pending_explored is not None:
-            new_m2 = (int(self.grid.layers.explored.sum()) - r.pending_explored) * self.grid.resolution_m**2
-            if new_m2 < self.config.policy.rescan_new_ground_m2:
-                r = replace(r, rescans_left=r.rescans_left - 1)  # the one cut short led nowhere new
-            r = replace(r, pending_explored=None)
-            self._set(rescan=r)
         if r.rescans_left > 0:
             if r.steps == 0:
                 self.grid.forgive_collisions()
@@ -487,7 +479,6 @@ class ModIINAgent:
                     self.grid.layers.explored[:] = False
                     self._explored_carried = False
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
-                r = replace(r, pending_explored=int(self.grid.layers.explored.sum()))
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
                 r = RescanState(steps=0, rescans_left=r.rescans_left - 1)
