@@ -32,12 +32,25 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.frontier import frontier_mask  # noqa: E402
 from agent.loop import run_loop  # noqa: E402
+from agent.policy import ModIINAgent  # noqa: E402
 from agent.types import Pose2D  # noqa: E402
 from sim.backend import SimBackend  # noqa: E402
-from sim.episodes import load_episode_set  # noqa: E402
+from sim.episodes import Episode, load_episode_set  # noqa: E402
 from sim.evaluation.cli import add_arguments, realism_of  # noqa: E402
 from sim.evaluation.registry import get_spec  # noqa: E402
 from sim.world import SimWorld  # noqa: E402
+
+
+def episode_run(args: argparse.Namespace) -> tuple[Episode, SimWorld, SimBackend, ModIINAgent]:
+    """The episode ``args.episode_id`` of ``args.episodes``: its world, its backend (with
+    ``--realism``) and the Mod-IIN agent ``imgnav eval`` would run on it with these flags."""
+    es = load_episode_set(args.episodes)
+    (ep,) = [e for e in es.episodes if e.episode_id == args.episode_id]
+    world = SimWorld.from_seed(ep.scene_seed)
+    backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep), realism=realism_of(args))
+    agent = get_spec("modiin").make_agent(args, backend.oracle)
+    assert isinstance(agent, ModIINAgent)
+    return ep, world, backend, agent
 
 
 def main() -> int:
@@ -47,11 +60,7 @@ def main() -> int:
     parser.add_argument("step", type=int)
     parser.add_argument("png")
     args = parser.parse_args()
-    es = load_episode_set(args.episodes)
-    (ep,) = [e for e in es.episodes if e.episode_id == args.episode_id]
-    world = SimWorld.from_seed(ep.scene_seed)
-    backend = SimBackend.for_episode(world, ep, es.goal_image_path(ep), realism=realism_of(args))
-    agent = get_spec("modiin").make_agent(args, backend.oracle)
+    ep, world, backend, agent = episode_run(args)
     run_loop(backend, agent, args.step, (), should_stop=lambda: backend.done)
     grid = agent.grid
     L = grid.layers
