@@ -15,6 +15,9 @@ prints, on the episodes that every run has (a ladder in the paper's layout):
 * each run against the first: the paired difference in SR and SPL with its interval, and how
   many episodes it won (failed in the first, succeeded here) and lost;
 * each run's failure causes on those episodes (counts, as in the paper's failure table);
+* where each run stood turning on one spot: the episodes that ran out of steps, and the steps
+  spent in runs of at least ``STUCK_TURNS`` turns alternating left and right (the longest run);
+  a robot doing that in a home looks broken whatever the episode's outcome (issue 30);
 * each run's cost: agent and simulator milliseconds per step, episodes per hour (meaningful
   between runs made side by side on one machine).
 
@@ -49,6 +52,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from agent.types import Action
 from sim.metrics import aggregate, bootstrap_ci
 
 RECORDS = "episodes.jsonl"
@@ -271,6 +275,22 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
                 + " | ".join(str(c.get(k, 0)) for k in FAILURE_CLASSES)
                 + f" | {other} |"
             )
+    if common:
+        lines += [
+            "",
+            f"Turning to and fro on one spot, on the common episodes (runs of {STUCK_TURNS} or more "
+            "alternating left and right turns):",
+            "",
+            "| variant | out of steps | episodes with such a run | steps in them | longest run |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        for d, recs in zip(out_dirs, runs):
+            per = [to_and_fro_runs((recs[k].get("trajectory") or {}).get("actions") or []) for k in common]
+            long = [[n for n in r if n >= STUCK_TURNS] for r in per]
+            lines.append(
+                f"| {_label(d, recs)} | {sum(bool(recs[k].get('max_steps_reached')) for k in common)} | "
+                f"{sum(bool(x) for x in long)} | {sum(map(sum, long))} | {max((max(r, default=0) for r in per), default=0)} |"
+            )
     if common and all(all("timing" in recs[k] for k in common) for recs in runs):
         lines += [
             "",
@@ -292,6 +312,26 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
     if any(multi) and paired:
         lines += _first_and_later(out_dirs, raw, runs)
     return "\n".join(lines)
+
+
+STUCK_TURNS = 10  # a run of alternating turns this long is a robot stuck on one spot
+
+
+def to_and_fro_runs(actions: Sequence[int]) -> list[int]:
+    """The lengths of the runs of turns alternating left and right (``Action`` values) in an
+    episode's actions: left, right, left is a run of 3; two turns the same way start a new run."""
+    turns = (int(Action.TURN_LEFT), int(Action.TURN_RIGHT))
+    runs, n = [], 0
+    for prev, cur in zip([None, *actions], actions):
+        if cur in turns and prev in turns and prev != cur:
+            n += 1
+        else:
+            if n > 1:
+                runs.append(n)
+            n = 1 if cur in turns else 0
+    if n > 1:
+        runs.append(n)
+    return runs
 
 
 def same_actions(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
