@@ -15,9 +15,11 @@ prints, on the episodes that every run has (a ladder in the paper's layout):
 * each run against the first: the paired difference in SR and SPL with its interval, and how
   many episodes it won (failed in the first, succeeded here) and lost;
 * each run's failure causes on those episodes (counts, as in the paper's failure table);
-* where each run stood turning on one spot: the episodes that ran out of steps, and the steps
-  spent in runs of at least ``STUCK_TURNS`` turns alternating left and right (the longest run);
-  a robot doing that in a home looks broken whatever the episode's outcome (issue 30);
+* where each run stood on one spot: the episodes that ran out of steps, those in which the robot
+  stayed within ``STAND_RADIUS_M`` of one place for ``STAND_STEPS`` steps or more (the longest
+  such stretch), and the steps spent in runs of at least ``STUCK_TURNS`` turns alternating left
+  and right (the longest run); a robot doing that in a home looks broken whatever the episode's
+  outcome (issue 30);
 * each run's cost: agent and simulator milliseconds per step, episodes per hour (meaningful
   between runs made side by side on one machine).
 
@@ -278,17 +280,21 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
     if common:
         lines += [
             "",
-            f"Turning to and fro on one spot, on the common episodes (runs of {STUCK_TURNS} or more "
-            "alternating left and right turns):",
+            f"Standing on one spot, on the common episodes (within {STAND_RADIUS_M} m for {STAND_STEPS} steps or "
+            f"more; runs of {STUCK_TURNS} or more turns alternating left and right):",
             "",
-            "| variant | out of steps | episodes with such a run | steps in them | longest run |",
-            "| --- | --- | --- | --- | --- |",
+            "| variant | out of steps | episodes standing | longest stand (steps) | episodes turning to and fro "
+            "| steps in those runs | longest run |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
         ]
         for d, recs in zip(out_dirs, runs):
-            per = [to_and_fro_runs((recs[k].get("trajectory") or {}).get("actions") or []) for k in common]
+            trajs = [recs[k].get("trajectory") or {} for k in common]
+            stands = [longest_stand(t.get("poses_world") or []) for t in trajs]
+            per = [to_and_fro_runs(t.get("actions") or []) for t in trajs]
             long = [[n for n in r if n >= STUCK_TURNS] for r in per]
             lines.append(
                 f"| {_label(d, recs)} | {sum(bool(recs[k].get('max_steps_reached')) for k in common)} | "
+                f"{sum(n >= STAND_STEPS for n in stands)} | {max(stands, default=0)} | "
                 f"{sum(bool(x) for x in long)} | {sum(map(sum, long))} | {max((max(r, default=0) for r in per), default=0)} |"
             )
     if common and all(all("timing" in recs[k] for k in common) for recs in runs):
@@ -315,6 +321,24 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
 
 
 STUCK_TURNS = 10  # a run of alternating turns this long is a robot stuck on one spot
+# a robot within this radius of one place for this many steps stands still (a look-around or a
+# rescan is 12 steps on the spot)
+STAND_RADIUS_M = 0.5
+STAND_STEPS = 100
+
+
+def longest_stand(poses: Sequence[Sequence[float]], radius_m: float = STAND_RADIUS_M) -> int:
+    """The most steps an episode's robot spent within ``radius_m`` of the pose a stretch began at
+    (``poses``: its (x, y, yaw) per step)."""
+    best = 0
+    for i, (x, y, *_) in enumerate(poses):
+        j = i
+        while j + 1 < len(poses) and (poses[j + 1][0] - x) ** 2 + (poses[j + 1][1] - y) ** 2 <= radius_m**2:
+            j += 1
+        best = max(best, j - i)
+        if best >= len(poses) - 1 - i:
+            break
+    return best
 
 
 def to_and_fro_runs(actions: Sequence[int]) -> list[int]:

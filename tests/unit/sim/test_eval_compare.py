@@ -186,25 +186,29 @@ def test_multi_goal_runs_are_compared_subtask_by_subtask_first_goal_against_late
         compare([base, write(tmp_path, "single", BASE)])
 
 
-def test_runs_of_turns_to_and_fro_and_the_stuck_table(tmp_path):
-    from sim.evaluation.compare import STUCK_TURNS, to_and_fro_runs
+def test_runs_of_turns_to_and_fro_stands_and_the_stuck_table(tmp_path):
+    from sim.evaluation.compare import STAND_STEPS, STUCK_TURNS, longest_stand, to_and_fro_runs
 
     L, R, F = 2, 3, 1
     # two turns the same way start a new run; a forward move ends one; runs of one turn are no runs
     assert to_and_fro_runs([L, R, L, L, R, F, R, L]) == [3, 2, 2]
     assert to_and_fro_runs([L, L, L, F, R]) == []
+    # within 0.5 m: two forward moves of 0.25 m from a place still count, a third does not
+    assert longest_stand([[0, 0, 0], [0, 0, 1], [0.25, 0, 1], [0.5, 0, 1], [0.75, 0, 1]]) == 3
 
     def walked(eid, home, actions, out_of_steps=False):
-        return {
-            **rec(eid, home, not out_of_steps),
-            "trajectory": {"actions": actions},
-            "max_steps_reached": out_of_steps,
-        }
+        # forward moves go 0.25 m along x, turns stay: the poses the actions lead to
+        poses, x = [[0.0, 0.0, 0.0]], 0.0
+        for a in actions:
+            x += 0.25 if a == F else 0.0
+            poses.append([x, 0.0, 0.0])
+        traj = {"actions": actions, "poses_world": poses}
+        return {**rec(eid, home, not out_of_steps), "trajectory": traj, "max_steps_reached": out_of_steps}
 
-    stuck = [F] + [L, R] * 20 + [F] + [R, L] * 6  # runs of 40 and 12 turns
+    stuck = [F] + [L, R] * 60 + [F] + [R, L] * 6  # runs of 120 and 12 turns, 134 steps within 0.5 m
     b = write(tmp_path, "base", [walked("a0", 1, stuck, True), walked("b0", 2, [L, R, L, F, 0])])
     v = write(tmp_path, "var", [walked("a0", 1, [F, L, F, 0]), walked("b0", 2, [L, R, L, F, 0])])
     rows = [line for line in compare([b, v]).splitlines() if line.startswith("| ")]
-    assert STUCK_TURNS <= 12
-    assert f"| {b} (v) | 1 | 1 | 52 | 40 |" in rows
-    assert f"| {v} (v) | 0 | 0 | 0 | 3 |" in rows
+    assert STUCK_TURNS <= 12 and STAND_STEPS <= 133
+    assert f"| {b} (v) | 1 | 1 | 134 | 1 | 132 | 120 |" in rows
+    assert f"| {v} (v) | 0 | 0 | 5 | 0 | 0 | 3 |" in rows  # b0: a turn run of 3, 5 steps within 0.5 m
