@@ -31,9 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.loop import LoopStep, run_loop  # noqa: E402
 from agent.motion import N_HEADINGS, move_key  # noqa: E402
-from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action  # noqa: E402
+from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG  # noqa: E402
 from benchmarks.map_at_step import episode_run  # noqa: E402
 from sim.evaluation.cli import add_arguments  # noqa: E402
+from sim.evaluation.compare import to_and_fro_runs  # noqa: E402
 
 
 def main() -> int:
@@ -46,7 +47,7 @@ def main() -> int:
     args = parser.parse_args()
     _, world, backend, agent = episode_run(args)
     last = {"obstacle": None}
-    turns: list[Action] = []
+    turns: list[int] = []
 
     class Printer:
         def step(self, s: LoopStep) -> None:
@@ -70,7 +71,7 @@ def main() -> int:
                 if d.plan is not None
                 else "no plan"
             )
-            turns.append(s.action)
+            turns.append(int(s.action))
             print(
                 f"{s.step:4d} {action:34s} {d.mode.value:11s} {d.event.value:28s} "
                 f"pose ({pose.x_m:.2f}, {pose.y_m:.2f}, {math.degrees(pose.yaw_rad):6.1f})  {target}  "
@@ -91,11 +92,7 @@ def main() -> int:
                 print(f"{'':5s}failed from this cell: bins {failed}; free on the map: bins {free}")
 
     run_loop(backend, agent, args.start + args.count, (Printer(),), should_stop=lambda: backend.done)
-    longest = run = 1
-    for a, b in zip(turns, turns[1:]):
-        run = run + 1 if {a, b} == {Action.TURN_LEFT, Action.TURN_RIGHT} else 1
-        longest = max(longest, run)
-    print(f"longest run of turns to and fro in these steps: {longest if turns else 0}")
+    print(f"longest run of turns to and fro in these steps: {max(to_and_fro_runs(turns), default=0)}")
     backend.close()
     world.close()
     return 0
