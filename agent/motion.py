@@ -47,12 +47,7 @@ def safe_action(
     detour_after_turns: int = 0,
 ) -> tuple[Action, MotionState]:
     """The plan's action, unless it is a forward move that already failed from this very
-    cell and heading: then turn towards the side the path bends to, and put that move's
-    collision mark back on the map (``grid`` is changed). The plan only asks for a failed move
-    when its mark was forgiven (a rescan drops them all); left off, the planner keeps routing
-    through the move the memory refuses, and the robot turns to and fro between the refused
-    heading and its neighbour for as long as the target is kept (actuation noise alone,
-    train-s1-0008-0: 513 of 1,000 steps; docs/experiments/realism-components.md). And when the plan turns
+    cell and heading: then turn towards the side the path bends to. And when the plan turns
     back to such a heading (it points between two 30 deg headings and the nearer one is
     blocked), step forward on the current heading instead, to get round what blocked the move,
     rather than turn to and fro on the spot; only where the map shows that step traversible.
@@ -85,7 +80,6 @@ def safe_action(
                 return Action.MOVE_FORWARD, motion
     if plan.action != Action.MOVE_FORWARD or key not in motion.blocked:
         return plan.action, replace(motion, blocked_repeats=0)
-    grid.mark_collision(pose)
     path = plan.path_xy_m
     far = path[min(len(path) - 1, 8)]
     err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)

@@ -10,7 +10,6 @@ from agent.events import Context, Event
 from agent.modes import Decision, Mode
 from agent.policy import ModIINAgent
 from agent.types import Action, Pose2D
-from sim.evaluation.compare import to_and_fro_runs
 from tests.helpers.agent_runs import oracle_agent, run_decisions
 from tests.helpers.agent_scenes import BoxWorld, room_walls, two_rooms
 
@@ -219,21 +218,47 @@ def _kerb_world():
 
 
 def _longest_to_and_fro(steps) -> int:
-    return max(to_and_fro_runs([int(d.action) for d, _ in steps]), default=1)
+    run = best = 1
+    for (a, _), (b, _) in zip(steps, steps[1:]):
+        run = run + 1 if {a.action, b.action} == {Action.TURN_LEFT, Action.TURN_RIGHT} else 1
+        best = max(best, run)
+    return best
 
 
-def test_a_refused_move_sends_the_plan_elsewhere_instead_of_turning_to_and_fro():
-    # The plan points through the door; the motion memory refuses the move that failed there once
-    # a rescan forgave its collision mark. Before the refusal put the mark back (agent.motion), the
-    # plan turned back to the door at once: to and fro on the spot until the budget was spent,
-    # side-step off (20 and more turns in a row), and the side-step (``detour_after_turns``) was
-    # how the robot got out. Now the plan goes round the re-marked move. The kerb spans the door,
-    # so the goal room stays out of reach and the robot keeps trying other ways to the end.
+def test_the_side_step_gets_out_of_turning_to_and_fro():
+    # Without the side-step: the plan points through the door, the motion memory refuses the move
+    # that failed there (a rescan forgave its collision mark), the refusal turns away, the plan
+    # turns back: to and fro on the spot until the budget is spent.
     world = _kerb_world()
     steps = run_decisions(oracle_agent(world, detour_after_turns=0), world, max_steps=300)
-    assert _longest_to_and_fro(steps) < 4 and world.pose.x_m < 1.0
-    assert any(d.mode == Mode.RESCAN for d, _ in steps)  # the marks were forgiven, and put back
+    assert len(steps) == 300 and steps[-1][0].action != Action.STOP
+    assert _longest_to_and_fro(steps) >= 20
     assert not any(d.has(Context.SIDE_STEP) for d, _ in steps)
+    # With it (policy.detour_after_turns: 4, the default): after the 4th turn to and fro the agent
+    # turns to a free heading and steps forward once, without re-planning in between; the record
+    # says so. (The goal room stays out of reach: the kerb spans the door.)
+    world = _kerb_world()
+    steps = run_decisions(oracle_agent(world), world, max_steps=300)
+    side = [k for k, (d, r) in enumerate(steps) if d.has(Context.SIDE_STEP) and r.context[:1] == ("side_step",)]
+    assert len(side) >= 3
+    # each side-step is turns (all the same way) and then one forward move
+    runs, cur = [], [side[0]]
+    for k in side[1:]:
+        if k == cur[-1] + 1:
+            cur.append(k)
+        else:
+            runs.append(cur)
+            cur = [k]
+    runs.append(cur)
+    for run in runs:
+        actions = [steps[k][0].action for k in run]
+        assert actions[-1] == Action.MOVE_FORWARD or run[-1] == len(steps) - 1
+        assert len(set(actions[:-1])) <= 1 and Action.MOVE_FORWARD not in actions[:-1]
+        # it began after a run of 4 turns to and fro
+        before = [steps[k][0].action for k in range(run[0] - 4, run[0])]
+        assert set(before) == {Action.TURN_LEFT, Action.TURN_RIGHT}
+        assert all(a != b for a, b in zip(before, before[1:]))
+    assert _longest_to_and_fro(steps) < 20
 
 
 def _walled_in_run(**policy):
