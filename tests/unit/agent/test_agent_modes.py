@@ -10,6 +10,7 @@ from agent.events import Context, Event
 from agent.modes import Decision, Mode
 from agent.policy import ModIINAgent
 from agent.types import Action, Pose2D
+from sim.evaluation.compare import to_and_fro_runs
 from tests.helpers.agent_runs import oracle_agent, run_decisions
 from tests.helpers.agent_scenes import BoxWorld, room_walls, two_rooms
 
@@ -218,11 +219,7 @@ def _kerb_world():
 
 
 def _longest_to_and_fro(steps) -> int:
-    run = best = 1
-    for (a, _), (b, _) in zip(steps, steps[1:]):
-        run = run + 1 if {a.action, b.action} == {Action.TURN_LEFT, Action.TURN_RIGHT} else 1
-        best = max(best, run)
-    return best
+    return max(to_and_fro_runs([int(d.action) for d, _ in steps]), default=1)
 
 
 def test_the_side_step_gets_out_of_turning_to_and_fro():
