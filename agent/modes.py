@@ -118,15 +118,17 @@ class VerifyState:
 class RescanState:
     steps: int = 0  # turns of the current rescan
     rescans_left: int = 3
+    # where the robot stood when a rescan last forgave the collision marks and given-up frontiers
+    forgiven_at: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class MotionState:
-    """Failed forward moves, as (global cell i, cell j, heading bin), and how often in a row the
-    plan asked for one of them."""
+    """Failed forward moves, as (global cell i, cell j, heading bin), and how often the plan asked
+    for one of them since the robot last moved forward."""
 
     blocked: frozenset[tuple[int, int, int]] = frozenset()
-    blocked_repeats: int = 0
+    blocked_repeats: int = 0  # moves refused since the robot last moved forward
     # the run of alternating turns (left, right, left, ...) that ended with the last action
     alternating_turns: int = 0
     last_action: Action | None = None

@@ -53,7 +53,9 @@ def safe_action(
     rather than turn to and fro on the spot; only where the map shows that step traversible.
 
     ``detour_after_turns`` N > 0: after N turns to and fro on the spot, side-step (``detour``).
-    Returns the action and the updated memory (``blocked_repeats`` counts refused moves in a row)."""
+    Returns the action and the updated memory (``blocked_repeats`` counts the moves refused since
+    the robot last moved forward: the plan's own turns in between do not reset it, or a to-and-fro
+    between a refused heading and its neighbour would never count past one)."""
     key = move_key(grid, pose)
     if motion.detour is not None:
         di, dj, dh = motion.detour
@@ -79,7 +81,7 @@ def safe_action(
             if planner.line_free(grid, field, here, ahead):
                 return Action.MOVE_FORWARD, motion
     if plan.action != Action.MOVE_FORWARD or key not in motion.blocked:
-        return plan.action, replace(motion, blocked_repeats=0)
+        return plan.action, motion
     path = plan.path_xy_m
     far = path[min(len(path) - 1, 8)]
     err = wrap_angle(math.atan2(far[1] - pose.y_m, far[0] - pose.x_m) - pose.yaw_rad)
@@ -137,6 +139,8 @@ def after_action(motion: MotionState, action: Action) -> MotionState:
     """The memory after the robot took ``action``: the run of alternating turns (left, right,
     left, ... on the spot: a turn never moves the robot) that ends with it."""
     turns = (Action.TURN_LEFT, Action.TURN_RIGHT)
+    if action == Action.MOVE_FORWARD:
+        motion = replace(motion, blocked_repeats=0)
     if action not in turns:
         n = 0
     elif motion.last_action in turns and motion.last_action != action:

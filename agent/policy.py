@@ -46,6 +46,7 @@ Oracle ablations are injected callables (the agent never imports sim/):
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -69,7 +70,7 @@ from agent.reid.base import Matcher
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
 from agent.shortlist import FrameShortlist
-from agent.types import Action, AgentRecord, Observation, Pose2D
+from agent.types import FORWARD_STEP_M, Action, AgentRecord, Observation, Pose2D
 
 log = logging.getLogger(__name__)
 
@@ -467,13 +468,29 @@ class ModIINAgent:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
+        #
+        # Forgiving again where the last forgiving left the robot teaches nothing: the marks and
+        # give-ups since then were all made from this spot, and forgiving them brings back the same
+        # frontier through the same refused move. Exploration takes over after one turn, the
+        # rescan is never counted, and the robot turns there until its budget ends (actuation
+        # noise alone, train-s1-0008-0: 700 steps; clean val-s0-0015-0: 726). So the rescan looks
+        # around without forgiving, and is counted when its turns are done, unless new frontiers
+        # come into view. A robot that moved half a step or more is somewhere new: forgive again
+        # (how a robot with noisy moves squeezes through a gap it clipped).
         r = self._state.rescan
         if r.rescans_left > 0:
             if r.steps == 0:
-                self.grid.forgive_collisions()
-                self.grid.forgive_frontiers()
+                here = (obs.pose.x_m, obs.pose.y_m)
                 self.explorer.reset()
-                log.info("no reachable frontier: cleared collision marks and given-up frontiers, looking around again")
+                if r.forgiven_at is None or math.dist(here, r.forgiven_at) >= FORWARD_STEP_M / 2:
+                    self.grid.forgive_collisions()
+                    self.grid.forgive_frontiers()
+                    r = replace(r, forgiven_at=here)
+                    log.info(
+                        "no reachable frontier: cleared collision marks and given-up frontiers, looking around again"
+                    )
+                else:
+                    log.info("no reachable frontier, on the spot of the last forgiving: looking around again as it is")
                 if self._explored_carried:
                     # what earlier goals looked over was not looked over for this one (agent.memory)
                     self.grid.layers.explored[:] = False
@@ -481,7 +498,7 @@ class ModIINAgent:
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = RescanState(steps=0, rescans_left=r.rescans_left - 1)
+                r = RescanState(steps=0, rescans_left=r.rescans_left - 1, forgiven_at=r.forgiven_at)
             else:
                 r = replace(r, steps=steps)
             self._set(rescan=r)
