@@ -37,12 +37,15 @@ def oracle_agent(world, **policy):
     return ModIINAgent(oracle_config(**policy), oracle_reid=world.goal_visible, oracle_ego_mask=world.goal_mask)
 
 
-def run_decisions(agent, world, max_steps=300):
-    """[(Decision, AgentRecord)] of one run, stopping at STOP."""
+def run_decisions(agent, world, max_steps=300, before_step=None):
+    """[(Decision, AgentRecord)] of one run, stopping at STOP. ``before_step(agent)``, if given,
+    runs before each step (a test's hand on the agent's state)."""
     obs = world.observe()
     agent.reset(obs.goal_image)
     out = []
     for _ in range(max_steps):
+        if before_step is not None:
+            before_step(agent)
         action = agent.act(obs)
         d, rec = agent.last_decision, agent.last_record
         assert isinstance(d, Decision) and d.action == action == rec.action

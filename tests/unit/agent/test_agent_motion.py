@@ -104,3 +104,26 @@ def test_no_side_step_where_no_step_is_free_or_none_gets_nearer():
     assert detour_heading(plan, pose, field, grid, planner, motion) is None
     action, m = safe_action(plan, pose, field, grid, planner, motion, detour_after_turns=4)
     assert action in (Action.TURN_LEFT, Action.TURN_RIGHT) and m.detour is None
+
+
+def test_refused_moves_are_counted_until_the_robot_moves_forward():
+    # To and fro between a refused heading and its neighbour: the refusal turns away, the plan
+    # turns back. The plan's own turns do not reset the count of refusals (the policy gives up
+    # the target after 4); a forward move does.
+    from agent.motion import after_action
+
+    pose = Pose2D(-2.0, -1.0, 0.0)
+    grid, planner, field = _open_room_at(pose)
+    motion = MotionState(blocked=frozenset({move_key(grid, pose)}))
+    path = np.array([[-2.0, -1.0], [-1.5, -0.8], [-1.0, -0.6]], np.float32)
+    ahead = Plan(Action.MOVE_FORWARD, (0, 0), (-1.0, -0.6), 1.0, path)
+    back = Plan(Action.TURN_RIGHT, (0, 0), (-1.0, -0.6), 1.0, path)
+    turned = Pose2D(pose.x_m, pose.y_m, math.radians(30))
+    for k in range(1, 5):
+        action, motion = safe_action(ahead, pose, field, grid, planner, motion)
+        assert action == Action.TURN_LEFT and motion.blocked_repeats == k
+        motion = after_action(motion, action)
+        action, motion = safe_action(back, turned, field, grid, planner, replace(motion, blocked=frozenset()))
+        assert action == Action.TURN_RIGHT and motion.blocked_repeats == k
+        motion = after_action(replace(motion, blocked=frozenset({move_key(grid, pose)})), action)
+    assert after_action(motion, Action.MOVE_FORWARD).blocked_repeats == 0
