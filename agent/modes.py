@@ -118,8 +118,10 @@ class VerifyState:
 class RescanState:
     steps: int = 0  # turns of the current rescan
     rescans_left: int = 3
-    # where the robot stood when a rescan last forgave the collision marks and given-up frontiers
+    # where the robot stood when a rescan last forgave the collision marks and given-up frontiers,
+    # and how many failed moves the motion memory held then
     forgiven_at: tuple[float, float] | None = None
+    forgiven_failed_moves: int = 0
 
 
 @dataclass(frozen=True, slots=True)

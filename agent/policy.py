@@ -469,28 +469,36 @@ class ModIINAgent:
         # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
         # doorway passed at an angle): forgive both and look around again before giving up.
         #
-        # Forgiving again where the last forgiving left the robot teaches nothing: the marks and
-        # give-ups since then were all made from this spot, and forgiving them brings back the same
-        # frontier through the same refused move. Exploration takes over after one turn, the
-        # rescan is never counted, and the robot turns there until its budget ends (actuation
-        # noise alone, train-s1-0008-0: 700 steps; clean val-s0-0015-0: 726). So the rescan looks
-        # around without forgiving, and is counted when its turns are done, unless new frontiers
-        # come into view. A robot that moved half a step or more is somewhere new: forgive again
-        # (how a robot with noisy moves squeezes through a gap it clipped).
+        # Forgiving again teaches nothing when nothing was learnt since the last forgiving: the
+        # robot stands where it stood then and no forward move failed that had not failed before.
+        # The same frontier comes back through the same move the motion memory refuses;
+        # exploration takes over after one turn, the rescan is never counted, and the robot turns
+        # there until its budget ends (actuation noise alone, train-s1-0008-0: 700 steps; clean
+        # val-s0-0015-0: 726). Then the rescan looks around as the map is, and is counted when its
+        # turns are done unless new frontiers come into view. A robot that moved half a step or
+        # more, or found a new way blocked, forgives again: that is how a robot with noisy moves
+        # squeezes through a gap it clipped (each failed move is new once, so this is bounded).
         r = self._state.rescan
         if r.rescans_left > 0:
             if r.steps == 0:
                 here = (obs.pose.x_m, obs.pose.y_m)
+                failed = len(self._state.motion.blocked)
                 self.explorer.reset()
-                if r.forgiven_at is None or math.dist(here, r.forgiven_at) >= FORWARD_STEP_M / 2:
+                if (
+                    r.forgiven_at is None
+                    or math.dist(here, r.forgiven_at) >= FORWARD_STEP_M / 2
+                    or failed > r.forgiven_failed_moves
+                ):
                     self.grid.forgive_collisions()
                     self.grid.forgive_frontiers()
-                    r = replace(r, forgiven_at=here)
+                    r = replace(r, forgiven_at=here, forgiven_failed_moves=failed)
                     log.info(
                         "no reachable frontier: cleared collision marks and given-up frontiers, looking around again"
                     )
                 else:
-                    log.info("no reachable frontier, on the spot of the last forgiving: looking around again as it is")
+                    log.info(
+                        "no reachable frontier, nothing learnt since the last forgiving: looking around again as it is"
+                    )
                 if self._explored_carried:
                     # what earlier goals looked over was not looked over for this one (agent.memory)
                     self.grid.layers.explored[:] = False
@@ -498,7 +506,7 @@ class ModIINAgent:
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = RescanState(steps=0, rescans_left=r.rescans_left - 1, forgiven_at=r.forgiven_at)
+                r = replace(r, steps=0, rescans_left=r.rescans_left - 1)
             else:
                 r = replace(r, steps=steps)
             self._set(rescan=r)
