@@ -473,11 +473,12 @@ class ModIINAgent:
         # robot stands where it stood then and no forward move failed that had not failed before.
         # The same frontier comes back through the same move the motion memory refuses;
         # exploration takes over after one turn, the rescan is never counted, and the robot turns
-        # there until its budget ends (actuation noise alone, train-s1-0008-0: 700 steps; clean
-        # val-s0-0015-0: 726). Then the rescan looks around as the map is, and is counted when its
-        # turns are done unless new frontiers come into view. A robot that moved half a step or
-        # more, or found a new way blocked, forgives again: that is how a robot with noisy moves
-        # squeezes through a gap it clipped (each failed move is new once, so this is bounded).
+        # there until its budget ends (actuation noise alone, train-s1-0008-0: 700 steps;
+        # docs/experiments/rescan-nothing-learnt.md). Then the rescan looks around as the map is,
+        # and is counted when its turns are done unless new frontiers come into view. A robot that
+        # moved half a step or more, or found a new way blocked, forgives again: that is how a
+        # robot with noisy moves squeezes through a gap it clipped (each failed move is new once,
+        # so this is bounded).
         r = self._state.rescan
         if r.rescans_left > 0:
             if r.steps == 0:
