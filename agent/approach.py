@@ -36,7 +36,7 @@ from agent.mapping import GridMap
 from agent.modes import Decision, Mode, PolicyState, VerifyState
 from agent.motion import blocked_here, move_key, safe_action
 from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
-from agent.stop_region import in_sight
+from agent.stop_region import in_sight, seen_side
 from agent.stop_region import stop_cells as stop_cells_of
 from agent.types import FORWARD_STEP_M, Action, Observation, Pose2D, wrap_angle
 
@@ -189,14 +189,18 @@ class CandidateNavigator:
         """APPROACH the candidate's stop region, face it and stop; None when it was given up."""
         pc, grid, pose = self.config, scene.grid, scene.obs.pose
         stop_cells = stop_cells_of(grid, cand, pc)
+
+        def side(cells: np.ndarray) -> np.ndarray:  # stop only on a side it was seen from
+            return seen_side(grid, cells, stop_cells, np.asarray(cand.seen_from_xy_m))
+
         region = region_within(stop_cells, pc.stop_radius_m, grid.resolution_m)
         if pc.stop_rule == "core":
-            region = in_sight(grid, region, stop_cells)
+            region = side(in_sight(grid, region, stop_cells))
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal).
-        near_enough = (st.approach.region_unreachable or blocked_here(grid, st.motion, pose)) and region_within(
-            stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m
+        near_enough = (st.approach.region_unreachable or blocked_here(grid, st.motion, pose)) and side(
+            region_within(stop_cells, pc.stop_radius_m + max(FORWARD_STEP_M, pc.stop_radius_slack_m), grid.resolution_m)
         )[agent_ij]
         if region[agent_ij] or near_enough:
             return self._at_candidate(scene, cand), st
@@ -210,7 +214,7 @@ class CandidateNavigator:
             except PlanError:
                 # The stop region can be out of reach (a TV on a deep stand, the middle of a
                 # bed): head for the reachable cells nearest to the goal instead.
-                wider = region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m)
+                wider = side(region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m))
                 plan = self.planner.plan(grid, field, pose, wider)
                 a = replace(a, region_unreachable=True)
         except PlanError as exc:
@@ -285,6 +289,7 @@ class CandidateNavigator:
         ring = region_within(grid.layers.goal, outer, grid.resolution_m) & ~region_within(
             grid.layers.goal, inner, grid.resolution_m
         )
+        ring = seen_side(grid, ring, grid.layers.goal, np.asarray(cl.seen_from_xy_m))
         agent_ij = grid.cell_of(pose)
         v = st.verify
         if v is None or v.candidate_id != cl.id:

@@ -54,17 +54,21 @@ class Candidate:
     n_frames: int
     id: int = -1  # stable: the index of its oldest point (clusters that merge keep the older id)
     frames: tuple[int, ...] = ()  # steps that added points to it, ascending
+    # where the robot stood (run frame, metres) for each of ``frames``: the side it was seen from
+    seen_from_xy_m: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
 class View:
     """One frame's contribution: its step, re-ID score, the distance from the robot to the
-    points it added (their 10th percentile, metres) and how many points it added."""
+    points it added (their 10th percentile, metres), how many points it added and where the
+    robot stood (run frame)."""
 
     step: int
     score: float
     distance_m: float
     n_points: int
+    robot_xy_m: tuple[float, float] = (0.0, 0.0)
 
 
 class GoalLocaliser:
@@ -166,7 +170,8 @@ class GoalLocaliser:
         # the centroid of a bed or couch lies a metre inside it, so a view from its edge would
         # count as a view from afar
         dist = np.hypot(xyz[:, 0] - robot_xy_m[0], xyz[:, 1] - robot_xy_m[1])
-        self._views[frame] = View(frame, float(score), float(np.quantile(dist, 0.1)), len(xyz))
+        robot = (float(robot_xy_m[0]), float(robot_xy_m[1]))
+        self._views[frame] = View(frame, float(score), float(np.quantile(dist, 0.1)), len(xyz), robot)
         self._xyz = np.vstack([self._xyz, xyz.astype(np.float32)])
         self._score = np.concatenate([self._score, np.full(len(xyz), score, np.float32)])
         self._frame = np.concatenate([self._frame, np.full(len(xyz), frame, np.int64)])
@@ -220,6 +225,7 @@ class GoalLocaliser:
                     int(len(frames)),
                     int(index_k[sel].min()),
                     tuple(int(f) for f in frames),
+                    tuple(self._views[int(f)].robot_xy_m for f in frames if int(f) in self._views),
                 )
             )
         out.sort(key=lambda c: c.n_points, reverse=True)

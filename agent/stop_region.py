@@ -5,7 +5,12 @@ success is decided within 1.0 m of the object and seeing it.
   candidate's *points* nearest their median, so that each cell weighs by the evidence in it (a
   few stray points spread over many cells: on val a third of a TV's cells held 3% of its points,
   0.4-0.9 m in front of it);
-* the line of sight on the map from a stop cell to the core.
+* the line of sight on the map from a stop cell to the core;
+* the side the candidate was seen from: the cells around it within 90 degrees of a direction
+  it was seen from. A bed or TV against a wall is, on the map, one obstacle with the wall, so
+  the line of sight alone lets a stop cell behind that wall through (two later goals on
+  ``trainseq10s2``, recalled from memory, stopped there facing the wall:
+  docs/experiments/seen-side.md).
 """
 
 from __future__ import annotations
@@ -67,3 +72,26 @@ def in_sight(grid: GridMap, region: np.ndarray, target: np.ndarray) -> np.ndarra
     clear = ~blocking[pts[..., 0], pts[..., 1]].any(axis=1)
     out[cells[clear, 0], cells[clear, 1]] = True
     return out if out.any() else region
+
+
+def seen_side(grid: GridMap, region: np.ndarray, target: np.ndarray, seen_from_xy_m: np.ndarray) -> np.ndarray:
+    """The cells of ``region`` on a side the candidate was seen from: the direction from the
+    centre of ``target`` cells to the cell lies within 90 degrees of the direction to one of the
+    places it was seen from (``Candidate.seen_from_xy_m``, run frame). What was seen is a
+    surface facing those places, so a cell there can see it; a cell on the far side may face
+    the wall it stands against. When no place is known, or no cell of the region is on a seen
+    side: the plain region."""
+    seen = np.asarray(seen_from_xy_m, np.float64).reshape(-1, 2)
+    cells = np.argwhere(region)
+    tij = np.argwhere(target)
+    if len(seen) == 0 or len(cells) == 0 or len(tij) == 0:
+        return region
+    centre = grid.ij_to_xy(np.median(tij, axis=0)[None])[0]
+    to_cell = grid.ij_to_xy(cells) - centre
+    to_seen = seen - centre
+    keep = ((to_cell @ to_seen.T) >= 0.0).any(axis=1)
+    if not keep.any():
+        return region
+    out = np.zeros_like(region)
+    out[cells[keep, 0], cells[keep, 1]] = True
+    return out

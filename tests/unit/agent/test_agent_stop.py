@@ -1,10 +1,13 @@
-"""Where the agent stops: the candidate's core weighed by its points."""
+"""Where the agent stops: the candidate's core weighed by its points, in sight of it, on a side it was seen from."""
+
+from dataclasses import replace
 
 import numpy as np
 
-from agent.localisation import Candidate
+from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
-from agent.stop_region import core_cells, core_points
+from agent.planner import region_within
+from agent.stop_region import core_cells, core_points, in_sight, seen_side
 
 
 def _candidate(grid, points_xyz):
@@ -45,3 +48,55 @@ def test_core_by_points_keeps_the_object_and_drops_stray_cells():
     # the core points are the share of the points nearest to their median
     core = core_points(cand, 0.7)
     assert abs(len(core) - 700) <= 2 and core[:, 0].min() >= 2.0
+
+
+def _bed_against_a_wall():
+    """A wall at x 0.00-0.10 between two rooms and a bed in the east room, its head against the
+    wall: x 0.10-2.10, y -0.8..0.8, seen from (3.5, 0.5) in that room. On the map the bed and
+    the wall are one obstacle."""
+    grid = GridMap()
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(0.15, 2.1, 600), rng.uniform(-0.8, 0.8, 600), rng.uniform(0.3, 0.6, 600)])
+    cand = replace(_candidate(grid, pts), seen_from_xy_m=((3.5, 0.5),))
+    obstacle = np.zeros(grid.shape, bool)
+    for x0, x1, y0, y1 in ((0.0, 0.1, -3.0, 3.0), (0.1, 2.1, -0.8, 0.8)):
+        i0, j0 = grid.xy_to_ij(np.array([[x0, y0]]))[0]
+        i1, j1 = grid.xy_to_ij(np.array([[x1, y1]]))[0]
+        obstacle[min(i0, i1) : max(i0, i1) + 1, min(j0, j1) : max(j0, j1) + 1] = True
+    grid.layers.obstacle[:] = obstacle
+    return grid, cand
+
+
+def test_a_stop_behind_the_wall_a_bed_stands_against_is_not_in_sight_of_it():
+    grid, cand = _bed_against_a_wall()
+    core = np.zeros(grid.shape, bool)
+    cc = core_cells(grid, cand, 0.7)
+    core[cc[:, 0], cc[:, 1]] = True
+    region = region_within(core, 0.6 + 0.25, grid.resolution_m) & ~grid.layers.obstacle
+    xy = grid.ij_to_xy(np.argwhere(region))
+    assert (xy[:, 0] < 0.0).any() and (xy[:, 0] > 0.1).any()  # the region reaches over the wall
+    # the line of sight alone lets cells behind the wall through (the wall is within 0.3 m of the bed)
+    sight = grid.ij_to_xy(np.argwhere(in_sight(grid, region, core)))
+    assert (sight[:, 0] < 0.0).any()
+    # the side it was seen from keeps only the bed's own room
+    both = seen_side(grid, in_sight(grid, region, core), core, np.asarray(cand.seen_from_xy_m))
+    kept = grid.ij_to_xy(np.argwhere(both))
+    assert len(kept) > 0 and kept[:, 0].min() > 0.1
+    # seen from the west room as well (through the wall, here): the cells behind it are kept too
+    west = grid.ij_to_xy(np.argwhere(seen_side(grid, region, core, np.array([[3.5, 0.5], [-2.0, 0.0]]))))
+    assert (west[:, 0] < 0.0).sum() == (xy[:, 0] < 0.0).sum() and (west[:, 0] > 0.1).any()
+    # nothing known about where it was seen from, or no cell of the region on a seen side: unchanged
+    assert (seen_side(grid, region, core, np.zeros((0, 2))) == region).all()
+    behind = region & (grid.ij_to_xy(np.argwhere(np.ones(grid.shape, bool)))[:, 0] < 0.0).reshape(grid.shape)
+    assert behind.any() and (seen_side(grid, behind, core, np.asarray(cand.seen_from_xy_m)) == behind).all()
+
+
+def test_candidates_remember_where_each_view_was_taken():
+    loc = GoalLocaliser()
+    rng = np.random.default_rng(2)
+    for step, robot in ((3, (2.0, 0.0)), (7, (0.0, 2.0))):
+        pts = np.column_stack([rng.uniform(0.9, 1.1, 20), rng.uniform(0.9, 1.1, 20), np.full(20, 0.5)])
+        loc.add_points(pts, 90.0, step, robot)
+    (cl,) = loc.candidates(GridMap())
+    assert cl.frames == (3, 7) and cl.seen_from_xy_m == ((2.0, 0.0), (0.0, 2.0))
+    assert loc.view(7).robot_xy_m == (0.0, 2.0)
