@@ -233,13 +233,15 @@ def run_sequence(
     args: argparse.Namespace,
     fail_fast: bool = False,
     next_agent: NextAgent | None = None,
+    sinks_for: Callable[[int], Sequence[Any]] | None = None,
 ) -> dict[str, Any]:
     """Run every goal of ``seq`` in an already built world, each from where the last ended;
     returns the sequence's record (module docstring). goal_images: one per goal, arrays or PNG paths.
     ``next_agent``: the hook between goals (default: ``SharedHomeMemory`` with ``--memory``, a new
     one for this sequence, else ``agent_for_goal``); with ``--memory`` the subtasks share one
     frame whatever the hook, and the memory's figures are recorded when the hook has a
-    ``memory``."""
+    ``memory``. ``sinks_for(goal_index)``: more step sinks for that goal's loop (a tracing
+    tool's)."""
     t0, c0 = time.perf_counter(), time.process_time()
     budget = subtask_budget(args)
     memory_on = uses_memory(args)
@@ -264,7 +266,8 @@ def run_sequence(
         def make(oracle: Any, previous: Agent | None = previous, handoff: SubtaskHandoff = handoff) -> Agent:
             return hook(previous, spec, args, oracle, handoff)
 
-        rec, agent = run_on_backend(backend, episode, spec, args, make, fail_fast)
+        sinks = sinks_for(g) if sinks_for is not None else ()
+        rec, agent = run_on_backend(backend, episode, spec, args, make, fail_fast, sinks=sinks)
         believed = backend.estimate_world
         previous_end = (
             Pose2D() if believed == backend.start_pose_world else believed.relative_to(backend.start_pose_world)

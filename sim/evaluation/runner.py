@@ -151,6 +151,7 @@ def run_on_backend(
     fail_fast: bool = False,
     t0: float | None = None,
     c0: float | None = None,
+    sinks: Sequence[Any] = (),
 ) -> tuple[dict[str, Any], Agent | None]:
     """Run the agent ``make_agent(backend.oracle)`` on a built backend to the end of ``episode``
     (the backend's episode: one single-goal episode, or one subtask of a sequence) with the
@@ -158,7 +159,7 @@ def run_on_backend(
     backend (its final pose stays readable). ``t0``, ``c0``: when the episode began, by
     ``time.perf_counter`` and ``time.process_time`` (default: now); the record's ``timing``
     holds the wall and CPU seconds since (``wall_s``, ``cpu_s``: the worker process's CPU,
-    all its threads)."""
+    all its threads). ``sinks``: more step sinks for the loop (``agent.loop``; a tracing tool's)."""
     t0 = time.perf_counter() if t0 is None else t0
     c0 = time.process_time() if c0 is None else c0
     realism = backend.realism
@@ -169,7 +170,7 @@ def run_on_backend(
     try:
         agent = make_agent(backend.oracle)
         observer = spec.make_observer(args, episode, backend.oracle) if spec.make_observer else None
-        sinks = (_ObserverSink(observer),) if observer is not None else ()
+        sinks = ((_ObserverSink(observer),) if observer is not None else ()) + tuple(sinks)
         try:
             # the project's one loop; the episode ends when the backend says so (STOP or budget)
             result = run_loop(backend, agent, backend.max_steps, sinks, should_stop=lambda: backend.done)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import pytest
@@ -65,3 +66,26 @@ def test_a_repeated_goal_is_found_in_memory_and_reached_without_exploring(
     # a resumed run without --memory is refused, the records untouched
     assert main(argv) == 2
     assert (out / "episodes.jsonl").read_text().splitlines() == lines
+
+
+def test_the_step_trace_of_a_later_goal_runs_the_goals_before_it(
+    repeat_sequence: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # benchmarks/trace_steps.py on SEQUENCE-g2: the two goals before it run first and share the
+    # memory, so the repeat's first printed steps are already about the remembered candidate
+    import benchmarks.trace_steps as trace
+
+    argv = ["--episodes", str(repeat_sequence), "--agent", "modiin", "--out", str(tmp_path / "x")]
+    argv += ["--subtask-budget", "20", "--modiin-threads", "1", "--memory"]
+    (seq_id,) = [d["episode_id"] for d in json.loads((repeat_sequence / "episodes.json").read_text())["episodes"]]
+    old = sys.argv
+    sys.argv = ["trace_steps.py", *argv, "--", f"{seq_id}-g2", 0, 6]
+    sys.argv = [str(a) for a in sys.argv]
+    try:
+        assert trace.main() == 0
+    finally:
+        sys.argv = old
+    lines = [x for x in capsys.readouterr().out.splitlines() if x[:4].strip().isdigit()]
+    assert [int(x.split()[0]) for x in lines] == list(range(6))
+    modes = {x[40:51].strip() for x in lines}  # the columns of Printer.step
+    assert modes and modes <= {"approach", "verify", "stopped"}, lines
