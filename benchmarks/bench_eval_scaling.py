@@ -29,6 +29,17 @@ episodes on N machines of CPUS cores (cost x 1000 / (N x CPUS), plus one Ray sta
 it ignores the tail where fewer homes than CPUs are left). Without ``--episodes``, a val
 set of ``--limit`` episodes (seed 0) is generated into a temporary directory first.
 Timings from a loaded machine are not final: run it on a quiet one.
+
+``--compare code --before REV``: the agent of another commit against the code here, on the same
+first ``--limit`` episodes, back to back (``--repeat R`` alternates the order). Each side is one
+``imgnav eval --workers CPUS`` process: REV's from a git worktree made for it (removed after), the
+current one from this checkout; the CPU of each is that process's and its workers' (the
+children's ``getrusage``, taken around it), so the figure does not depend on what the commit
+records. Prints episodes per CPU-hour and their ratio, SR, SPL and steps, and the parts of a
+step from the records (medians over episodes of the agent's per-part medians:
+extraction, the gate's first stage, LighterGlue (the exit stage's layers, or all), mapping,
+alignment, planning, the agent's whole step; and the simulator's step). Steps differ when the
+two agents act differently: the CPU per step is printed beside the CPU per episode.
 """
 
 from __future__ import annotations
@@ -36,6 +47,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import resource
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -151,6 +165,107 @@ def compare_schedules(args: argparse.Namespace, ep_dir: str, runs: Path, extra: 
     }
 
 
+# the parts of a step: (label, where in a record); the agent's are medians over its steps
+STEP_PARTS = (
+    ("extract", ("modiin", "median_ms", "reid_extract")),
+    ("gate (first stage)", ("modiin", "median_ms", "reid_gate")),
+    ("match (LighterGlue)", ("modiin", "median_ms", "reid_match")),
+    ("mapping", ("modiin", "median_ms", "mapping")),
+    ("alignment", ("modiin", "median_ms", "align")),
+    ("planning", ("modiin", "median_ms", "planning")),
+    ("agent step", ("modiin", "median_ms", "total")),
+    ("simulator step", ("timing", "sim_ms_per_step")),
+)
+
+
+def _field(record: dict, path: tuple[str, ...]) -> float | None:
+    for key in path:
+        if not isinstance(record, dict) or key not in record:
+            return None
+        record = record[key]
+    return None if record is None else float(record)
+
+
+def _eval_process(cwd: Path, ep_dir: str, agent: str, cpus: int, limit: int, out: Path, extra: list[str]) -> dict:
+    """One ``imgnav eval`` process run from ``cwd`` (a checkout): its wall and CPU seconds (the
+    process and its workers), and its records."""
+    cmd = [sys.executable, "-m", "console.cli", "eval", "--episodes", str(Path(ep_dir).resolve()), "--agent", agent]
+    cmd += ["--workers", str(cpus), "--limit", str(limit), "--out", str(out.resolve()), *extra]
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
+    return {"wall_s": wall, "cpu_s": cpu, "records": records}
+
+
+def compare_code(args: argparse.Namespace, ep_dir: str, runs: Path, extra: list[str]) -> dict:
+    """The agent of ``--before`` against the code here, back to back (module docstring)."""
+    here = Path(__file__).resolve().parents[1]
+    rev = subprocess.run(
+        ["git", "rev-parse", "--short", args.before], cwd=here, check=True, capture_output=True, text=True
+    ).stdout.strip()
+    tree = Path(tempfile.mkdtemp(prefix=f"bench-{rev}-"))
+    subprocess.run(["git", "worktree", "add", "--detach", "-f", str(tree), rev], cwd=here, check=True,
+                   capture_output=True)  # fmt: skip
+    sides = {"before": tree, "after": here}
+    runs_of: dict[str, list[dict]] = {"before": [], "after": []}
+    try:
+        for r in range(args.repeat):
+            for name in ["before", "after"] if r % 2 == 0 else ["after", "before"]:
+                out = runs / f"{name}{r}"
+                runs_of[name].append(_eval_process(sides[name], ep_dir, args.agent, args.cpus, args.limit, out, extra))
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=here, capture_output=True)
+    fig: dict[str, dict] = {}
+    for name, rs in runs_of.items():
+        recs = rs[0]["records"]
+        n = len(recs)
+        cpu = statistics.median(x["cpu_s"] for x in rs)
+        steps = sum(int(x["steps"]) for x in recs)
+        parts = {}
+        for label, path in STEP_PARTS:
+            vals = [v for v in (_field(x, path) for x in recs) if v is not None]
+            parts[label] = statistics.median(vals) if vals else None
+        fig[name] = {
+            "episodes": n,
+            "cpu_s": [round(x["cpu_s"], 1) for x in rs],
+            "wall_s": [round(x["wall_s"], 1) for x in rs],
+            "episodes_per_cpu_hour": 3600.0 * n / cpu,
+            "cpu_ms_per_step": 1000.0 * cpu / max(steps, 1),
+            "steps": steps,
+            "sr": sum(bool(x["success"]) for x in recs) / max(n, 1),
+            "spl": sum(float(x["spl"]) for x in recs) / max(n, 1),
+            "parts_ms": parts,
+        }
+    b, a = fig["before"], fig["after"]
+    print(
+        f"{args.agent} {args.eval_args} on {a['episodes']} episodes of {ep_dir}, --workers {args.cpus}: {rev} "
+        f"(before) against this checkout (after), back to back, {args.repeat} round(s) in alternating order "
+        "(CPU: median over rounds; parts: medians over episodes of the first round)"
+    )
+    print(f"| figure | before ({rev}) | after | after / before |")
+    print("| --- | ---: | ---: | ---: |")
+    for label, key, fmt in (
+        ("episodes per CPU-hour", "episodes_per_cpu_hour", "{:.1f}"),
+        ("CPU ms per step", "cpu_ms_per_step", "{:.1f}"),
+        ("steps", "steps", "{:.0f}"),
+        ("SR", "sr", "{:.3f}"),
+        ("SPL", "spl", "{:.3f}"),
+    ):
+        print(f"| {label} | {fmt.format(b[key])} | {fmt.format(a[key])} | {a[key] / b[key]:.2f} |")
+    for label, _ in STEP_PARTS:
+        pb, pa = b["parts_ms"][label], a["parts_ms"][label]
+        ratio = f"{pa / pb:.2f}" if pb and pa is not None else ""
+        cell = lambda v: "" if v is None else f"{v:.1f}"  # noqa: E731
+        print(f"| {label} (ms, median) | {cell(pb)} | {cell(pa)} | {ratio} |")
+    print(f"CPU per round (s): before {b['cpu_s']}, after {a['cpu_s']}")
+    return {"compare": "code", "before_rev": rev, "agent": args.agent, "eval_args": args.eval_args,
+            "episode_set": ep_dir, "cpus": args.cpus, "repeat": args.repeat, **fig}  # fmt: skip
+
+
 def replay_schedules(ep_dir: str, limit: int, run: Path, cpus: int) -> dict[str, dict]:
     """Old and current scheduling replayed from one run's recorded CPU seconds."""
     import statistics
@@ -176,10 +291,12 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument(
         "--compare",
-        choices=["schedule", "ray"],
+        choices=["schedule", "ray", "code"],
         default="schedule",
-        help="schedule: the runner's old and current scheduling; ray: local workers against Ray",
+        help="schedule: the runner's old and current scheduling; ray: local workers against Ray; "
+        "code: the agent of --before against this checkout",
     )
+    p.add_argument("--before", default=None, help="with --compare code: the commit to compare against")
     p.add_argument("--episodes", default=None, help="val episode set (default: generate --limit episodes)")
     p.add_argument("--limit", type=int, default=20)
     p.add_argument("--agent", default="modiin")
@@ -210,8 +327,10 @@ def main() -> int:
     runs = Path(args.keep) if args.keep else Path(tmp.name)
     if runs.exists() and any(runs.glob("*/episodes.jsonl")):
         raise SystemExit(f"{runs} holds earlier runs; use another --keep")
-    if args.compare == "schedule":
-        fig = compare_schedules(args, ep_dir, runs, extra)
+    if args.compare in ("schedule", "code"):
+        if args.compare == "code" and not args.before:
+            raise SystemExit("--compare code needs --before REV")
+        fig = (compare_schedules if args.compare == "schedule" else compare_code)(args, ep_dir, runs, extra)
         if args.json:
             Path(args.json).write_text(json.dumps(fig, indent=1) + "\n")
         tmp.cleanup()
