@@ -7,15 +7,14 @@ success is decided within 1.0 m of the object and seeing it.
   0.4-0.9 m in front of it);
 * the line of sight on the map from a stop cell to the core;
 * the side the candidate was seen from: the cells around it within 90 degrees of a direction
-  it was seen from, and the parts of the region joined to them on free cells. A bed or TV
-  against a wall is, on the map, one obstacle with the wall, so the line of sight alone lets a
-  stop cell behind that wall through (two later goals on ``trainseq10s2``, recalled from memory,
-  stopped there facing the wall: docs/experiments/seen-side.md).
+  it was seen from. A bed or TV against a wall is, on the map, one obstacle with the wall, so
+  the line of sight alone lets a stop cell behind that wall through (two later goals on
+  ``trainseq10s2``, recalled from memory, stopped there facing the wall:
+  docs/experiments/seen-side.md).
 """
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from agent.config import PolicyConfig
@@ -76,17 +75,12 @@ def in_sight(grid: GridMap, region: np.ndarray, target: np.ndarray) -> np.ndarra
 
 
 def seen_side(grid: GridMap, region: np.ndarray, target: np.ndarray, seen_from_xy_m: np.ndarray) -> np.ndarray:
-    """The cells of ``region`` on a side the candidate was seen from, and the parts of the
-    region joined to them.
-
-    A cell is on a seen side when the direction from the centre of ``target`` cells to it lies
-    within 90 degrees of the direction to one of the places it was seen from
-    (``Candidate.seen_from_xy_m``, run frame): what was seen is a surface facing those places, so
-    a cell there can see it. The connected parts (8-neighbours) of the region's free cells that
-    hold such a cell are kept whole: the far side of a couch that stands free is joined to the
-    near side round its ends, while the room behind the wall a bed stands against is cut off
-    from the bed's own room by that wall. When no place is known, or no cell of the region is
-    on a seen side: the plain region."""
+    """The cells of ``region`` on a side the candidate was seen from: the direction from the
+    centre of ``target`` cells to the cell lies within 90 degrees of the direction to one of the
+    places it was seen from (``Candidate.seen_from_xy_m``, run frame). What was seen is a
+    surface facing those places, so a cell there can see it; a cell on the far side may face
+    the wall it stands against. When no place is known, or no cell of the region is on a seen
+    side: the plain region."""
     seen = np.asarray(seen_from_xy_m, np.float64).reshape(-1, 2)
     cells = np.argwhere(region)
     tij = np.argwhere(target)
@@ -100,10 +94,4 @@ def seen_side(grid: GridMap, region: np.ndarray, target: np.ndarray, seen_from_x
         return region
     out = np.zeros_like(region)
     out[cells[keep, 0], cells[keep, 1]] = True
-    # the connected parts of the region's free cells, labelled inside the region's bounding box
-    (i0, j0), (i1, j1) = cells.min(axis=0), cells.max(axis=0) + 1
-    free = (region & ~grid.layers.obstacle)[i0:i1, j0:j1]
-    _, labels = cv2.connectedComponents(free.astype(np.uint8), connectivity=8)
-    joined = np.unique(labels[out[i0:i1, j0:j1] & free])
-    out[i0:i1, j0:j1] |= np.isin(labels, joined[joined > 0])
     return out

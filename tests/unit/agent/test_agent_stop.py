@@ -82,12 +82,6 @@ def test_a_stop_behind_the_wall_a_bed_stands_against_is_not_in_sight_of_it():
     both = seen_side(grid, in_sight(grid, region, core), core, np.asarray(cand.seen_from_xy_m))
     kept = grid.ij_to_xy(np.argwhere(both))
     assert len(kept) > 0 and kept[:, 0].min() > 0.1
-    # ... the whole of it: beside the bed, joined to the seen side round its foot, though more
-    # than 90 degrees from where it was seen from
-    beside = (kept[:, 0] < 0.6) & (np.abs(kept[:, 1]) > 0.8)
-    assert beside.any()
-    centre = np.array(cand.centroid_xy_m)
-    assert ((kept[beside] - centre) @ (np.array([3.5, 0.5]) - centre) < 0).any()
     # seen from the west room as well (through the wall, here): the cells behind it are kept too
     west = grid.ij_to_xy(np.argwhere(seen_side(grid, region, core, np.array([[3.5, 0.5], [-2.0, 0.0]]))))
     assert (west[:, 0] < 0.0).sum() == (xy[:, 0] < 0.0).sum() and (west[:, 0] > 0.1).any()
@@ -95,39 +89,6 @@ def test_a_stop_behind_the_wall_a_bed_stands_against_is_not_in_sight_of_it():
     assert (seen_side(grid, region, core, np.zeros((0, 2))) == region).all()
     behind = region & (grid.ij_to_xy(np.argwhere(np.ones(grid.shape, bool)))[:, 0] < 0.0).reshape(grid.shape)
     assert behind.any() and (seen_side(grid, behind, core, np.asarray(cand.seen_from_xy_m)) == behind).all()
-
-
-def test_the_far_side_of_an_object_that_stands_free_is_kept_when_joined_to_the_seen_side():
-    """A couch in the open (x 0.0-2.0, y 0.0-0.9), seen from the south: the stop region wraps
-    round its ends, so the cells behind it are one part with those in front and are kept; a
-    wall behind it (y 0.9-1.0, closing the ends) cuts them off and drops them."""
-    grid = GridMap()
-    rng = np.random.default_rng(3)
-    pts = np.column_stack([rng.uniform(0.0, 2.0, 800), rng.uniform(0.0, 0.9, 800), rng.uniform(0.3, 0.8, 800)])
-    cand = replace(_candidate(grid, pts), seen_from_xy_m=((1.0, -2.5),))
-
-    def box(x0, x1, y0, y1):
-        m = np.zeros(grid.shape, bool)
-        (i0, j0), (i1, j1) = grid.xy_to_ij(np.array([[x0, y0], [x1, y1]]))
-        m[min(i0, i1) : max(i0, i1) + 1, min(j0, j1) : max(j0, j1) + 1] = True
-        return m
-
-    grid.layers.obstacle[:] = box(0.0, 2.0, 0.0, 0.9)
-    core = np.zeros(grid.shape, bool)
-    cc = core_cells(grid, cand, 0.7)
-    core[cc[:, 0], cc[:, 1]] = True
-    region = region_within(core, 0.6, grid.resolution_m) & ~grid.layers.obstacle
-    behind = region & (grid.ij_to_xy(np.argwhere(np.ones(grid.shape, bool)))[:, 1] > 1.0).reshape(grid.shape)
-    assert behind.any()
-    kept = seen_side(grid, region, core, np.asarray(cand.seen_from_xy_m))
-    assert (kept == region).all()  # one part, all of it kept
-    # a wall along its back, reaching past both ends: the cells behind are their own part
-    grid.layers.obstacle[:] = box(0.0, 2.0, 0.0, 0.9) | box(-1.5, 3.5, 0.9, 1.0)
-    region = region_within(core, 0.6, grid.resolution_m) & ~grid.layers.obstacle
-    kept = seen_side(grid, region, core, np.asarray(cand.seen_from_xy_m))
-    assert kept.any() and not (kept & behind).any()
-    front = grid.ij_to_xy(np.argwhere(kept))
-    assert front[:, 1].max() < 0.9
 
 
 def test_candidates_remember_where_each_view_was_taken():
