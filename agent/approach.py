@@ -12,7 +12,9 @@ state, and returns the ``Decision`` (None when the candidate was given up) and t
   ``verify_ring_tau_ratio`` x tau that adds points to it) confirms it, ``verify_views`` looks
   without one reject it (IEVE's explore-verify-exploit, Lei et al. CVPR 2024);
 * rejection: blacklist its cells on the map (softly when it only ever had potential evidence),
-  after dropping the collision marks once when it was unreachable (``unreachable_forgive``);
+  after dropping the collision marks once when it was unreachable (``unreachable_forgive``); a
+  candidate that scored tau and is still unreachable first waits for a way (``no_way``) while
+  the agent explores;
 * the last resort: head for the best rejected candidate when exploration is exhausted, or when
   the step budget is running out (``last_resort_at_deadline``), and stop there;
 * steering: the plan's first action, made safe by the motion memory (``agent.motion``), with
@@ -96,6 +98,33 @@ class CandidateNavigator:
         return replace(
             st,
             approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0, collisions_forgiven=0),
+            verify=None,
+        )
+
+    def _may_wait(self, scene: Scene, st: PolicyState, cand: Candidate) -> bool:
+        """A candidate found unreachable waits for a way rather than being rejected when it scored
+        tau (a rejection blacklists its cells for good: the goal there is lost), has not waited
+        before, and is not a rejected one being tried again (the last resort)."""
+        return (
+            self.tau is not None
+            and cand.max_score >= self.tau
+            and cand.id not in st.waited
+            and not scene.memory.was_rejected(cand.id)
+        )
+
+    def no_way(self, st: PolicyState, cand: Candidate) -> PolicyState:
+        """The candidate waits for a way: the agent explores past it and heads for it again as soon
+        as the map shows a way there (``ModIINAgent._no_way_yet``); when no frontier is left, it is
+        approached once more and rejected if still unreachable. A goal whose one way in the map
+        holds is a passage the robot could not get through (a collision mark on it, or a jamb drawn
+        a few centimetres off) is often reached by another way that exploring finds."""
+        log.info("goal candidate at %s: no way on the map yet, exploring for one", cand.centroid_xy_m)
+        a = st.approach
+        return replace(
+            st,
+            waiting=st.waiting | {cand.id},
+            waited=st.waited | {cand.id},
+            approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0),
             verify=None,
         )
 
@@ -185,9 +214,12 @@ class CandidateNavigator:
 
     # --- approach ----------------------------------------------------------------------
 
-    def approach(self, scene: Scene, st: PolicyState, cand: Candidate) -> Outcome:
-        """APPROACH the candidate's stop region, face it and stop; None when it was given up."""
-        pc, grid, pose = self.config, scene.grid, scene.obs.pose
+    def _stop_region(
+        self, grid: GridMap, cand: Candidate
+    ) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+        """The candidate's stop cells, its stop region (within the stop radius of them; with the
+        core rule, in sight of them and on a side it was seen from) and that side's filter."""
+        pc = self.config
         stop_cells = stop_cells_of(grid, cand, pc)
 
         def side(cells: np.ndarray) -> np.ndarray:  # stop only on a side it was seen from
@@ -196,6 +228,29 @@ class CandidateNavigator:
         region = region_within(stop_cells, pc.stop_radius_m, grid.resolution_m)
         if pc.stop_rule == "core":
             region = side(in_sight(grid, region, stop_cells))
+        return stop_cells, region, side
+
+    def has_way(self, scene: Scene, cand: Candidate) -> bool:
+        """Whether the map shows a way to the candidate's stop region (or, as ``approach`` falls
+        back to, the cells within the slack of it) from where the robot stands."""
+        pc, grid, pose = self.config, scene.grid, scene.obs.pose
+        stop_cells, region, side = self._stop_region(grid, cand)
+        if region[grid.cell_of(pose)]:
+            return True
+        field = self.planner.distance_field(grid, pose, extra_targets=region)
+        wider = side(region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m))
+        for target in (region, wider):
+            try:
+                self.planner.plan(grid, field, pose, target)
+                return True
+            except PlanError:
+                continue
+        return False
+
+    def approach(self, scene: Scene, st: PolicyState, cand: Candidate) -> Outcome:
+        """APPROACH the candidate's stop region, face it and stop; None when it was given up."""
+        pc, grid, pose = self.config, scene.grid, scene.obs.pose
+        stop_cells, region, side = self._stop_region(grid, cand)
         agent_ij = grid.cell_of(pose)
         # A forward step is 0.25 m: when the region is nearer than that and the way there is
         # blocked, this is as close as the robot gets (it still has to face the goal).
@@ -244,6 +299,8 @@ class CandidateNavigator:
             forgiven, st = self.forgive_before_reject(scene, st)
             if forgiven:
                 return retry(st)
+            if mode == Mode.APPROACH and self._may_wait(scene, st, cand):
+                return None, self.no_way(st, cand)
             return None, self.reject(scene, st, cand, f"{why} for {a.unreachable_steps} steps")
         planner_error = f"{exc.reason}: {exc}"
         return Decision(

@@ -104,6 +104,9 @@ class CandidateMemory:
         if cells_xy_m is not None and len(cells_xy_m):
             self._clusters[cl.id] = (cl, np.asarray(cells_xy_m, np.float64).reshape(-1, 2))
 
+    def was_rejected(self, cand_id: int) -> bool:
+        return cand_id in self._rejected
+
     def best_rejected(self, exclude: frozenset[int] = frozenset()) -> int | None:
         """The id of the rejected candidate with the best evidence (highest score, then most
         views), among those with a kept cluster and not in ``exclude``; None when none is left."""

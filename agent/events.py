@@ -43,6 +43,7 @@ class Context(str, enum.Enum):
     DEADLINE_OVER_WEAKER = "deadline_over_weaker"  # ... before a weaker potential candidate; facts: steps_left, score
     LAST_RESORT = "last_resort"  # heading for the best rejected candidate; facts: score
     RING_CONFIRMED = "ring_confirmed"  # a look from the verify ring at tau x ratio confirmed it; facts: score
+    NO_WAY_YET = "no_way_yet"  # a candidate that scored tau has no way on the map: exploring for one; facts: score
 
 
 # The order in which contexts enclose each other (outermost first): the second look decides
@@ -75,6 +76,8 @@ _CONTEXT_TEXT: dict[Context, str] = {
     "(best score {score:.1f}): {inner}",
     Context.LAST_RESORT: "last resort (rejected candidate, best score {score:.1f}): {inner}",
     Context.RING_CONFIRMED: "re-identified from the verify ring (score {score:.0f}); {inner}",
+    Context.NO_WAY_YET: "no way on the map yet to the goal candidate (best score {score:.1f}): exploring for one; "
+    "{inner}",
 }
 
 

@@ -154,6 +154,10 @@ class PolicyState:
     ring_confirmed: frozenset[int] = frozenset()  # steps whose look from the verify ring confirmed a candidate
     last_resort: LastResortState = field(default_factory=lambda: LastResortState())
     rechecked: bool = False  # the second look at the best frames when exhausted was taken
+    # candidates that scored tau, found unreachable: explored past until the map shows a way to
+    # them (``waiting``, by id), each once (``waited``); agent.approach.CandidateNavigator.no_way
+    waiting: frozenset[int] = frozenset()
+    waited: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)

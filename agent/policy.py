@@ -374,8 +374,30 @@ class ModIINAgent:
 
     # --- the state machine -----------------------------------------------------------
 
+    def _no_way_yet(
+        self, obs: Observation, candidates: list[GoalCandidate]
+    ) -> tuple[list[GoalCandidate], float | None]:
+        """The candidates without those still waiting for a way on the map (``CandidateNavigator.no_way``;
+        one that has a way now is taken back), and the best score among those left waiting (None:
+        none)."""
+        waiting = self._state.waiting
+        if not waiting:
+            return candidates, None
+        keep, still, best = [], set(), None
+        for c in candidates:
+            if c.cluster.id in waiting and not self.nav.has_way(self._scene(obs), c.cluster):
+                still.add(c.cluster.id)
+                best = max(best or 0.0, float(c.best_score))
+                continue
+            if c.cluster.id in waiting:
+                log.info("goal candidate at %s: a way on the map now", c.cluster.centroid_xy_m)
+            keep.append(c)
+        self._set(waiting=frozenset(still))  # ids no longer among the candidates are dropped
+        return keep, best
+
     def _decide(self, obs: Observation, candidates: list[GoalCandidate]) -> Decision:
         pc = self.config.policy
+        candidates, no_way_score = self._no_way_yet(obs, candidates)
         picked = self._pick(candidates)
         if picked is None and self._state.steps < pc.look_around_turns:
             return Decision(
@@ -407,7 +429,10 @@ class ModIINAgent:
             decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
             if decision is not None:
                 return decision.within(Context.DEADLINE, steps_left=pc.step_budget - obs.step)
-        return self._explore(obs)
+        decision = self._explore(obs)
+        if no_way_score is not None and decision.mode == Mode.EXPLORE:
+            return decision.within(Context.NO_WAY_YET, score=no_way_score)
+        return decision
 
     def _deadline_over(self, obs: Observation, picked: GoalCandidate) -> Decision | None:
         """``policy.deadline_over_weaker``: the last resort at the deadline before verifying
@@ -479,6 +504,11 @@ class ModIINAgent:
         # moved half a step or more, or found a new way blocked, forgives again: that is how a
         # robot with noisy moves squeezes through a gap it clipped (each failed move is new once,
         # so this is bounded).
+        if self._state.waiting:
+            # no frontier left to find a way by: the waiting candidates are approached once more
+            # (and rejected if still unreachable: each waits once)
+            log.info("no reachable frontier: the candidates waiting for a way are tried again")
+            self._set(waiting=frozenset())
         r = self._state.rescan
         if r.rescans_left > 0:
             if r.steps == 0:

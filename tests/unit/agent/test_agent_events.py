@@ -17,6 +17,7 @@ def test_every_event_and_context_has_a_sentence():
         Context.DEADLINE_OVER_WEAKER: dict(steps_left=40, score=5.0),
         Context.LAST_RESORT: dict(score=61.0),
         Context.RING_CONFIRMED: dict(score=60.0),
+        Context.NO_WAY_YET: dict(score=120.0),
         Context.SIDE_STEP: {},
     }
     assert set(notes) == set(Context)

@@ -299,13 +299,17 @@ def test_the_side_step_gets_out_of_turning_to_and_fro():
     assert _longest_to_and_fro(steps) < 10
 
 
-def _walled_in_run(**policy):
+def _walled_in_run(scored: bool = False, **policy):
     """two_rooms from inside room B: the goal is seen at the first step. Then a ring of collision
     marks 1.6 m around the candidate (as failed moves near an object leave, train-s1-0012-0)
-    walls in every spot within the stop radius; the marks are guesses, the space is free."""
-    boxes, goal, _ = two_rooms()
+    walls in every spot within the stop radius; the marks are guesses, the space is free.
+    ``scored``: the goal scores 200 against tau 100 (a confirmed candidate), else the oracle."""
+    boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
-    agent = oracle_agent(world, **policy)
+    if scored:
+        agent = _scored_agent(world, decoy, lambda d: 200.0, lambda d: 0.0, **policy)
+    else:
+        agent = oracle_agent(world, **policy)
     obs = world.observe()
     agent.reset(obs.goal_image)
     out = []
@@ -340,6 +344,64 @@ def test_collision_marks_are_dropped_before_a_candidate_is_given_up_as_unreachab
     assert [c.state for c in rec.candidates] == ["confirmed"]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert any(d.event == Event.GOAL_NOT_REACHABLE_YET for d, _ in steps)  # it was walled in first
+
+
+def test_a_candidate_that_scored_tau_waits_for_a_way_instead_of_being_given_up():
+    """The same walls of collision marks, the goal scoring 200 against tau 100 (no forgiving
+    before a rejection, no last resort): after 10 steps without a plan the candidate is not
+    rejected (its cells would be blacklisted for good) but waits while the agent explores; with
+    no frontier left the rescan drops the marks, the candidate is approached again and reached."""
+    world, steps = _walled_in_run(scored=True, unreachable_forgive=0, last_resort=False)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert all(c.state != "rejected" for _, r in steps for c in r.candidates)
+    first = next(i for i, (d, _) in enumerate(steps) if d.event == Event.GOAL_NOT_REACHABLE_YET)
+    waiting = [i for i, (d, _) in enumerate(steps) if d.has(Context.NO_WAY_YET)]
+    # 10 steps without a plan (the 10th turns to the look-around's last turns, as after a
+    # rejection), then exploring past it, saying why
+    no_plan = [i for i, (d, _) in enumerate(steps[: waiting[0]]) if d.event == Event.GOAL_NOT_REACHABLE_YET]
+    assert no_plan == list(range(first, first + 9))
+    assert all(steps[i][0].mode == Mode.LOOK_AROUND for i in range(first + 9, waiting[0]))
+    assert all(steps[i][0].mode == Mode.EXPLORE for i in waiting)
+    assert [n.facts["score"] for n in steps[waiting[0]][0].context if n.context == Context.NO_WAY_YET] == [200.0]
+    assert (
+        "no way on the map yet to the goal candidate (best score 200.0): exploring for one"
+        in steps[waiting[0]][1].reason
+    )
+    # the wait ends with the frontiers: a rescan (which drops the marks), then the approach
+    end = next(i for i in range(waiting[-1] + 1, len(steps)) if steps[i][0].mode != Mode.EXPLORE)
+    assert steps[end][0].mode == Mode.RESCAN
+    assert any(d.mode == Mode.APPROACH and d.plan is not None for d, _ in steps[end:])
+
+
+def test_a_waiting_candidate_still_unreachable_when_the_frontiers_run_out_is_rejected():
+    """Each candidate waits once: the collision marks are put back after every rescan, so when the
+    frontiers run out it is approached once more and, still walled in, rejected."""
+    boxes, goal, decoy = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    agent = _scored_agent(world, decoy, lambda d: 200.0, lambda d: 0.0, unreachable_forgive=0, last_resort=False)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    centre, steps = None, []
+    for _ in range(600):
+        action = agent.act(obs)
+        d = agent.last_decision
+        if centre is None and d.candidate is not None:
+            centre = d.candidate.centroid_xy_m
+        if centre is not None and not agent.grid.layers.collision.any():
+            cx, cy = centre
+            for k in range(32):
+                t = 2 * math.pi * k / 32
+                agent.grid.mark_collision(Pose2D(cx + 1.6 * math.cos(t), cy + 1.6 * math.sin(t), t + math.pi))
+        steps.append((d, agent.last_record))
+        world.apply(action)
+        if action == Action.STOP:
+            break
+        obs = world.observe()
+    assert any(d.has(Context.NO_WAY_YET) for d, _ in steps)
+    rejected = [c for c in steps[-1][1].candidates if c.state == "rejected"]
+    assert [c.why for c in rejected] == ["unreachable for 10 steps"]
+    assert world.distance_to_goal() > 1.0
 
 
 def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
