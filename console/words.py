@@ -192,6 +192,7 @@ CONTEXT_WORDS: dict[str, str] = {
     "deadline_over_weaker": "few steps left",
     "last_resort": "back to the best candidate left",
     "ring_confirmed": "recognised from nearby",
+    "no_way_yet": "no way to the object yet, looking for one",
 }
 
 

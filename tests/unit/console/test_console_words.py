@@ -125,3 +125,13 @@ def test_steps_and_timings() -> None:
     assert distance_driven_m([{"x_m": 0, "y_m": 0}, {"x_m": 3, "y_m": 4}, {"x_m": 3, "y_m": 4}]) == 5.0
     rows = dict(timing_rows({"upload_to_first_action_s": 0.82, "mean_step_ms": 107.2, "total_s": 214}))
     assert rows == {"upload to first move": "0.8 s", "per step (mean)": "107 ms", "total": "3 min 34 s"}
+
+
+def test_every_event_and_context_of_the_agent_has_words_for_the_operator() -> None:
+    from agent.events import Context, Event
+    from console.words import CONTEXT_WORDS, EVENT_WORDS
+
+    assert set(EVENT_WORDS) == {e.value for e in Event}
+    assert set(CONTEXT_WORDS) == {c.value for c in Context}
+    step = {"step": 40, "event": "frontier", "context": ["no_way_yet"], "action_name": "MOVE_FORWARD"}
+    assert step_words(step).startswith("Step 41: exploring (no way to the object yet, looking for one)")
