@@ -299,11 +299,12 @@ def test_the_side_step_gets_out_of_turning_to_and_fro():
     assert _longest_to_and_fro(steps) < 10
 
 
-def _walled_in_run(scored: bool = False, **policy):
+def _walled_in_run(scored: bool = False, again: bool = False, max_steps: int = 300, **policy):
     """two_rooms from inside room B: the goal is seen at the first step. Then a ring of collision
     marks 1.6 m around the candidate (as failed moves near an object leave, train-s1-0012-0)
     walls in every spot within the stop radius; the marks are guesses, the space is free.
-    ``scored``: the goal scores 200 against tau 100 (a confirmed candidate), else the oracle."""
+    ``scored``: the goal scores 200 against tau 100 (a confirmed candidate), else the oracle.
+    ``again``: the ring is put back whenever the marks were dropped."""
     boxes, goal, decoy = two_rooms()
     world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
     if scored:
@@ -312,13 +313,15 @@ def _walled_in_run(scored: bool = False, **policy):
         agent = oracle_agent(world, **policy)
     obs = world.observe()
     agent.reset(obs.goal_image)
-    out = []
-    for _ in range(300):
+    out, centre = [], None
+    for _ in range(max_steps):
         action = agent.act(obs)
         d = agent.last_decision
         if not out:
             assert d.mode == Mode.APPROACH and d.candidate is not None
-            cx, cy = d.candidate.centroid_xy_m
+            centre = d.candidate.centroid_xy_m
+        if not out or (again and not agent.grid.layers.collision.any()):
+            cx, cy = centre
             for k in range(32):
                 t = 2 * math.pi * k / 32
                 agent.grid.mark_collision(Pose2D(cx + 1.6 * math.cos(t), cy + 1.6 * math.sin(t), t + math.pi))
@@ -377,27 +380,7 @@ def test_a_candidate_that_scored_tau_waits_for_a_way_instead_of_being_given_up()
 def test_a_waiting_candidate_still_unreachable_when_the_frontiers_run_out_is_rejected():
     """Each candidate waits once: the collision marks are put back after every rescan, so when the
     frontiers run out it is approached once more and, still walled in, rejected."""
-    boxes, goal, decoy = two_rooms()
-    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
-    agent = _scored_agent(world, decoy, lambda d: 200.0, lambda d: 0.0, unreachable_forgive=0, last_resort=False)
-    obs = world.observe()
-    agent.reset(obs.goal_image)
-    centre, steps = None, []
-    for _ in range(600):
-        action = agent.act(obs)
-        d = agent.last_decision
-        if centre is None and d.candidate is not None:
-            centre = d.candidate.centroid_xy_m
-        if centre is not None and not agent.grid.layers.collision.any():
-            cx, cy = centre
-            for k in range(32):
-                t = 2 * math.pi * k / 32
-                agent.grid.mark_collision(Pose2D(cx + 1.6 * math.cos(t), cy + 1.6 * math.sin(t), t + math.pi))
-        steps.append((d, agent.last_record))
-        world.apply(action)
-        if action == Action.STOP:
-            break
-        obs = world.observe()
+    world, steps = _walled_in_run(scored=True, again=True, max_steps=600, unreachable_forgive=0, last_resort=False)
     assert any(d.has(Context.NO_WAY_YET) for d, _ in steps)
     rejected = [c for c in steps[-1][1].candidates if c.state == "rejected"]
     assert [c.why for c in rejected] == ["unreachable for 10 steps"]
