@@ -115,9 +115,9 @@ class CandidateNavigator:
     def no_way(self, st: PolicyState, cand: Candidate) -> PolicyState:
         """The candidate waits for a way: the agent explores past it and heads for it again as soon
         as the map shows a way there (``ModIINAgent._no_way_yet``); when no frontier is left, it is
-        approached once more and rejected if still unreachable. A goal whose one way in the map
-        holds is a passage the robot could not get through (a collision mark on it, or a jamb drawn
-        a few centimetres off) is often reached by another way that exploring finds."""
+        approached once more and rejected if still unreachable. The way the map held may be a
+        passage the robot could not get through (a collision mark across it, or a jamb drawn a few
+        centimetres off); exploring may find another, or a rescan drops the marks."""
         log.info("goal candidate at %s: no way on the map yet, exploring for one", cand.centroid_xy_m)
         a = st.approach
         return replace(
@@ -230,22 +230,33 @@ class CandidateNavigator:
             region = side(in_sight(grid, region, stop_cells))
         return stop_cells, region, side
 
+    def _plan_to_stop(
+        self, grid: GridMap, pose: Pose2D, stop_cells: np.ndarray, region: np.ndarray,
+        side: Callable[[np.ndarray], np.ndarray],
+    ) -> tuple[Plan, bool, DistanceField]:  # fmt: skip
+        """A plan to the stop region, else (the region can be out of reach: a TV on a deep stand,
+        the middle of a bed) to the reachable cells within the slack of it, nearest to the goal;
+        with whether it is the latter, and the field. Raises PlanError when neither has a plan."""
+        pc = self.config
+        field = self.planner.distance_field(grid, pose, extra_targets=region)
+        try:
+            return self.planner.plan(grid, field, pose, region), False, field
+        except PlanError:
+            wider = side(region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m))
+            return self.planner.plan(grid, field, pose, wider), True, field
+
     def has_way(self, scene: Scene, cand: Candidate) -> bool:
         """Whether the map shows a way to the candidate's stop region (or, as ``approach`` falls
         back to, the cells within the slack of it) from where the robot stands."""
-        pc, grid, pose = self.config, scene.grid, scene.obs.pose
+        grid, pose = scene.grid, scene.obs.pose
         stop_cells, region, side = self._stop_region(grid, cand)
         if region[grid.cell_of(pose)]:
             return True
-        field = self.planner.distance_field(grid, pose, extra_targets=region)
-        wider = side(region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m))
-        for target in (region, wider):
-            try:
-                self.planner.plan(grid, field, pose, target)
-                return True
-            except PlanError:
-                continue
-        return False
+        try:
+            self._plan_to_stop(grid, pose, stop_cells, region, side)
+        except PlanError:
+            return False
+        return True
 
     def approach(self, scene: Scene, st: PolicyState, cand: Candidate) -> Outcome:
         """APPROACH the candidate's stop region, face it and stop; None when it was given up."""
@@ -260,18 +271,9 @@ class CandidateNavigator:
         if region[agent_ij] or near_enough:
             return self._at_candidate(scene, cand), st
         st = replace(st, verify=None)
-        field = self.planner.distance_field(grid, pose, extra_targets=region)
-        a = st.approach
         try:
-            try:
-                plan = self.planner.plan(grid, field, pose, region)
-                a = replace(a, region_unreachable=False)
-            except PlanError:
-                # The stop region can be out of reach (a TV on a deep stand, the middle of a
-                # bed): head for the reachable cells nearest to the goal instead.
-                wider = side(region_within(stop_cells, pc.stop_radius_m + pc.stop_radius_slack_m, grid.resolution_m))
-                plan = self.planner.plan(grid, field, pose, wider)
-                a = replace(a, region_unreachable=True)
+            plan, region_unreachable, field = self._plan_to_stop(grid, pose, stop_cells, region, side)
+            a = replace(st.approach, region_unreachable=region_unreachable)
         except PlanError as exc:
             return self._no_plan(
                 scene, st, cand, exc, "unreachable", lambda s: self.approach(scene, s, cand),
