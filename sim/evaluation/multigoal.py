@@ -36,7 +36,7 @@ it, whether it skipped the look-around, the memory's size at its end). ``summary
 ones, per goal index and kind, and the sequences, SR and SPL with 95% intervals from a
 bootstrap over homes (with ``--memory``, ``memory_use`` over the later goals); its
 ``throughput`` (``schedule.throughput``) is given per sequence and per subtask. The runner hands
-sequences to workers as it hands out episodes (``runner._run_unit``), a sequence's estimated
+sequences to workers as it hands out episodes (``workers.run_unit``), a sequence's estimated
 cost being the sum over its goals.
 """
 
