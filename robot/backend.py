@@ -42,7 +42,6 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -60,7 +59,9 @@ from robot.protocol import (
     move_message,
     pose_error,
     posture_message,
+    to_observation,
 )
+from robot.reports import MapFrameReport, MoveReport, rounded
 
 log = logging.getLogger(__name__)
 
@@ -68,73 +69,6 @@ _TICK_S = 0.05  # how often waits re-check safety when no message arrives
 _HEAD_STILL_RAD = math.radians(0.5)  # camera tilt change between observations that counts as still
 _CAMERA_OFFSET_WARN_M = 0.05  # a map error the agent's 5 cm cells would show
 _CAMERA_PAN_WARN_RAD = math.radians(3.0)
-
-
-def _rounded(value: float, ndigits: int) -> float:
-    """``value`` rounded for printing, never a negative zero ("-0.0" reads as a sign error)."""
-    return round(value, ndigits) + 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class MoveReport:
-    """What happened to one base goal.
-
-    ack_wait_s: from the first send to the echo (includes the motion on the robot).
-    total_s: the whole ``apply`` call. blocked: the robot reported a failed motion
-    (``last_motion_failed``; the fake robot's collision) and stopped short of the goal.
-    arrival_wait_s: from the echo to the arrival the robot reported (about 0 on the bridge,
-    whose moves block; the motion itself on a server that echoes at once).
-    acked_before_arrival: a message echoing the step said ``at_goal`` false before the
-    robot reported arrival: this server acknowledges moves before the base arrives.
-    observations_before_arrival: observations echoing the step with ``at_goal`` false
-    (each one would have been a stale observation for a client that trusted the echo).
-    """
-
-    step: int
-    action: Action
-    start_world: Pose2D
-    goal_world: Pose2D
-    end_world: Pose2D
-    ack_wait_s: float
-    total_s: float
-    resends: int
-    blocked: bool
-    arrival_wait_s: float
-    acked_before_arrival: bool
-    observations_before_arrival: int
-
-
-@dataclass(frozen=True, slots=True)
-class MapFrameReport:
-    """Where a run is in the robot's own map frame: the frame of the bridge's ``base_pose`` and
-    ``gps``/``compass`` (stretch_ai's localisation), for a console that keeps the agent's memory of
-    the home across runs (``console.robot_memory``). The agent never sees it: its poses stay
-    relative to ``start_map``.
-
-    start_map: the run's start (fixed by ``reset``); None until then.
-    last_map: the last base pose the robot reported (its latest state message, else its latest
-        observation); None before any.
-    moving_to: a base goal sent whose arrival was not seen (the run ended during the move; the
-        bridge has no stop, so the base goes on to it); None when the base was not moving.
-    runstopped_states: how many state messages said the robot was runstopped while this
-        backend was connected (at the start, or at any moment of the run, also between two
-        steps: the link reads every state message); ``runstop_seen``: any.
-    first_step: the step the robot echoed when this backend connected (the bridge's count of
-        the actions it has handled since it started: it starts again with the bridge); None
-        before.
-    last_step: the highest step the robot has echoed; None before any.
-    """
-
-    start_map: Pose2D | None
-    last_map: Pose2D | None
-    moving_to: Pose2D | None
-    runstopped_states: int
-    first_step: int | None
-    last_step: int | None
-
-    @property
-    def runstop_seen(self) -> bool:
-        return self.runstopped_states > 0
 
 
 class StretchBackend:
@@ -546,12 +480,10 @@ class StretchBackend:
         def failure() -> str:
             tilt = tilt_of(link.observation)
             seen = (
-                "no observation after the head command"
-                if tilt is None
-                else f"{_rounded(math.degrees(tilt), 1):.1f} deg"
+                "no observation after the head command" if tilt is None else f"{rounded(math.degrees(tilt), 1):.1f} deg"
             )
             return (
-                f"the camera tilt did not reach {_rounded(math.degrees(wanted), 1):.1f} deg (down) "
+                f"the camera tilt did not reach {rounded(math.degrees(wanted), 1):.1f} deg (down) "
                 f"within {cfg.head_timeout_s:.0f} s: {seen}"
             )
 
@@ -631,9 +563,9 @@ class StretchBackend:
         local = Pose2D(float(T[0, 3]), float(T[1, 3]), encoding.camera_yaw_rad(T)).relative_to(raw.base_world)
         self.camera_offset = local
         text = (
-            f"head camera {_rounded(local.x_m, 3):+.3f} m ahead, {_rounded(local.y_m, 3):+.3f} m left of the base "
-            f"origin, pan {_rounded(math.degrees(local.yaw_rad), 1):+.1f} deg, height {_rounded(T[2, 3], 2):.2f} m, "
-            f"tilt {_rounded(math.degrees(encoding.camera_tilt_rad(T)), 1):.1f} deg down"
+            f"head camera {rounded(local.x_m, 3):+.3f} m ahead, {rounded(local.y_m, 3):+.3f} m left of the base "
+            f"origin, pan {rounded(math.degrees(local.yaw_rad), 1):+.1f} deg, height {rounded(T[2, 3], 2):.2f} m, "
+            f"tilt {rounded(math.degrees(encoding.camera_tilt_rad(T)), 1):.1f} deg down"
         )
         if math.hypot(local.x_m, local.y_m) > _CAMERA_OFFSET_WARN_M or abs(local.yaw_rad) > _CAMERA_PAN_WARN_RAD:
             log.warning("%s: the agent assumes the camera above the base origin looking ahead", text)
@@ -642,26 +574,7 @@ class StretchBackend:
 
     def _to_observation(self, raw: RawObservation) -> Observation:
         assert self._start_world is not None
-        try:
-            rgb = encoding.decode_rgb(raw.rgb_encoded)
-            depth_m = encoding.decode_depth(raw.depth_encoded)
-            if depth_m.shape != rgb.shape[:2]:
-                raise encoding.DecodeError(f"depth {depth_m.shape} is not aligned with rgb {rgb.shape[:2]}")
-            intrinsics = encoding.intrinsics_from_message(raw.camera_K, rgb.shape)
-            T_world_camera = encoding.camera_pose_matrix(raw.T_world_camera)
-        except encoding.DecodeError as exc:
-            raise BackendError("bad_observation", f"unusable observation from the robot: {exc}") from exc
-        return Observation(
-            rgb=rgb,
-            depth_m=depth_m,
-            pose=raw.base_world.relative_to(self._start_world),
-            intrinsics=intrinsics,
-            goal_image=self.goal_image,
-            camera_height_m=encoding.camera_height_m(T_world_camera),
-            camera_tilt_rad=encoding.camera_tilt_rad(T_world_camera),
-            step=self._actions_applied,
-            timestamp_s=raw.received_s,
-        )
+        return to_observation(raw, self._start_world, self.goal_image, self._actions_applied)
 
     # --- context manager ---------------------------------------------------------------
 

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, Pose2D, wrap_angle
+from agent.types import FORWARD_STEP_M, TURN_ANGLE_DEG, Action, BackendError, Observation, Pose2D, wrap_angle
+from robot import encoding
 
 OBS_PORT = 4401
 ACTION_PORT = 4402
@@ -205,4 +206,31 @@ def _parse_observation(msg: Mapping[str, Any], received_s: float) -> RawObservat
         last_motion_failed=bool(msg.get("last_motion_failed", False)),
         at_goal=_flag(msg, "at_goal", None),
         received_s=received_s,
+    )
+
+
+def to_observation(raw: RawObservation, start_world: Pose2D, goal_image: np.ndarray, step: int) -> Observation:
+    """The agent's ``Observation`` of a robot observation: images decoded, the base pose relative to
+    the run's start ``start_world``, the camera's height and tilt from its pose; ``step``: the
+    actions applied so far. An image or camera field that cannot be used is a ``BackendError``
+    ``bad_observation``."""
+    try:
+        rgb = encoding.decode_rgb(raw.rgb_encoded)
+        depth_m = encoding.decode_depth(raw.depth_encoded)
+        if depth_m.shape != rgb.shape[:2]:
+            raise encoding.DecodeError(f"depth {depth_m.shape} is not aligned with rgb {rgb.shape[:2]}")
+        intrinsics = encoding.intrinsics_from_message(raw.camera_K, rgb.shape)
+        T_world_camera = encoding.camera_pose_matrix(raw.T_world_camera)
+    except encoding.DecodeError as exc:
+        raise BackendError("bad_observation", f"unusable observation from the robot: {exc}") from exc
+    return Observation(
+        rgb=rgb,
+        depth_m=depth_m,
+        pose=raw.base_world.relative_to(start_world),
+        intrinsics=intrinsics,
+        goal_image=goal_image,
+        camera_height_m=encoding.camera_height_m(T_world_camera),
+        camera_tilt_rad=encoding.camera_tilt_rad(T_world_camera),
+        step=step,
+        timestamp_s=raw.received_s,
     )

@@ -16,10 +16,10 @@ import pytest
 
 from agent.types import Pose2D
 from robot.arrival import ArrivalLimits, ArrivalWatch
-from robot.backend import _rounded
 from robot.config import StretchConfig
 from robot.fake_world import BoxWorld
 from robot.protocol import RawObservation, RobotState
+from robot.reports import rounded
 
 WORLD = BoxWorld(start_world=Pose2D(-1.0, 0.3, 0.4))
 README = Path(__file__).resolve().parents[3] / "robot" / "README.md"
@@ -146,8 +146,8 @@ def test_readme_states_the_timeouts_of_the_code() -> None:
 
 
 def test_no_negative_zero_in_the_reset_log(make_fake, make_backend, caplog) -> None:
-    assert f"{_rounded(-0.04, 1):.1f}" == "0.0" and f"{_rounded(-0.0004, 3):+.3f}" == "+0.000"
-    assert _rounded(-0.06, 1) == -0.1
+    assert f"{rounded(-0.04, 1):.1f}" == "0.0" and f"{rounded(-0.0004, 3):+.3f}" == "+0.000"
+    assert rounded(-0.06, 1) == -0.1
     fake = make_fake(WORLD)
     with caplog.at_level(logging.INFO, logger="robot.backend"):
         make_backend(fake).reset()
