@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from agent.types import Pose2D
-from sim.evaluation.modiin import Attribution, build_config, failure_distribution, summarize, table_row
+from sim.evaluation.modiin import Attribution, build_config
+from sim.evaluation.modiin_summary import failure_distribution, summarize, table_row
 from tests.helpers.eval_args import modiin_args
 
 
