@@ -29,7 +29,8 @@ from console import sim_adapter
 from console.api import create_app
 from console.artifacts import run_dir
 from console.context import Console, ConsoleConfig
-from console.home_memory import HomeMemories, MemoryFileError, MemoryInUse, memory_bytes, memory_from_bytes
+from console.home_memory import HomeMemories, MemoryInUse
+from console.memory_file import MemoryFileError, memory_bytes, memory_from_bytes
 from console.options import SimRunOptions
 from console.pictures import CANDIDATE_MARK_RGB, render_map
 from console.session import ResolvedRun
@@ -112,7 +113,7 @@ def test_a_memory_file_gives_back_the_memory_it_was_written_from() -> None:
 
 
 def test_a_file_for_another_matcher_or_mapping_is_refused() -> None:
-    from console.home_memory import MemoryFileError
+    from console.memory_file import MemoryFileError
 
     data = memory_bytes(filled_memory(), None)
     with pytest.raises(MemoryFileError, match="descriptors"):

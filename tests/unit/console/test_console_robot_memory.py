@@ -19,17 +19,14 @@ import pytest
 
 from agent.config import AgentConfig
 from agent.types import Action, BackendError, Observation, Pose2D
-from console.home_memory import (
-    HOME_KEY,
+from console.home_memory import HOME_KEY, HomeMemories, home_key, robot_key
+from console.memory_file import (
     DropNote,
-    HomeMemories,
     MemoryFileError,
     RobotFrame,
-    home_key,
     memory_bytes,
     memory_file_from_bytes,
     memory_from_bytes,
-    robot_key,
 )
 from console.robot_memory import (
     MOVED_LIMIT_M,
