@@ -47,6 +47,12 @@ class GoalCandidate:
         return self.cluster.id
 
     @property
+    def remembered_only(self) -> bool:
+        """All its views are remembered ones (the memory of the home gives them negative ids,
+        ``agent.memory.Keyframe.frame_id``): none of this run's own frames added to it."""
+        return bool(self.cluster.frames) and all(f < 0 for f in self.cluster.frames)
+
+    @property
     def best_score(self) -> float:
         return max((v.score for v in self.views), default=0.0)
 

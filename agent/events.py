@@ -44,6 +44,9 @@ class Context(str, enum.Enum):
     LAST_RESORT = "last_resort"  # heading for the best rejected candidate; facts: score
     RING_CONFIRMED = "ring_confirmed"  # a look from the verify ring at tau x ratio confirmed it; facts: score
     NO_WAY_YET = "no_way_yet"  # a candidate that scored tau has no way on the map: exploring for one; facts: score
+    # the candidate rests on remembered views only (the memory of the home), none of this goal's own
+    # frames added to it; facts: score (its best, a remembered view's)
+    FROM_MEMORY = "from_memory"
 
 
 # The order in which contexts enclose each other (outermost first): the second look decides
@@ -78,6 +81,8 @@ _CONTEXT_TEXT: dict[Context, str] = {
     Context.RING_CONFIRMED: "re-identified from the verify ring (score {score:.0f}); {inner}",
     Context.NO_WAY_YET: "no way on the map yet to the goal candidate (best score {score:.1f}): exploring for one; "
     "{inner}",
+    Context.FROM_MEMORY: "goal candidate from the memory of the home only (best score {score:.1f}), not seen live "
+    "in this run: {inner}",
 }
 
 

@@ -417,6 +417,9 @@ class ModIINAgent:
             else:
                 decision, self._state = self.nav.approach(self._scene(obs), self._state, picked.cluster)
             if decision is not None:
+                if picked.remembered_only and not decision.has(Context.RING_CONFIRMED):
+                    # said, not acted on: a stop here rests on what the memory saw (docs/experiments/memory.md)
+                    decision = decision.within(Context.FROM_MEMORY, score=picked.best_score)
                 return decision
             cands = self._evaluate(self.localiser.candidates(self.grid, self.tau))  # the candidate was rejected
             self.grid.clear_goal()

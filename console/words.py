@@ -193,6 +193,7 @@ CONTEXT_WORDS: dict[str, str] = {
     "last_resort": "back to the best candidate left",
     "ring_confirmed": "recognised from nearby",
     "no_way_yet": "no way to the object yet, looking for one",
+    "from_memory": "known from memory only, not seen again in this run",
 }
 
 

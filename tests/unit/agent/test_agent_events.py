@@ -18,6 +18,7 @@ def test_every_event_and_context_has_a_sentence():
         Context.LAST_RESORT: dict(score=61.0),
         Context.RING_CONFIRMED: dict(score=60.0),
         Context.NO_WAY_YET: dict(score=120.0),
+        Context.FROM_MEMORY: dict(score=133.6),
         Context.SIDE_STEP: {},
     }
     assert set(notes) == set(Context)

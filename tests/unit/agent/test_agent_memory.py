@@ -369,6 +369,10 @@ def test_a_goal_seen_before_is_localised_from_memory_and_approached_without_expl
         obs = framed.observe()
     assert b[0].mode == Mode.APPROACH.value and b[0].candidate_id is not None
     assert {r.mode for r in b} <= {"approach", "stopped"}
+    # the reason says the candidate rests on the memory alone until a live frame adds to it
+    assert "from_memory" in b[0].context and "memory of the home only" in b[0].reason
+    live = [i for i, r in enumerate(b) if "from_memory" not in r.context]
+    assert live and all("from_memory" not in r.context for r in b[live[0] :])
     assert b[-1].event == "stop_at_goal" and world.distance_to_goal() < 1.0
     # the map's geometry carried over: the first step of goal B already has goal A's obstacles
     assert b[0].map is not None and b[0].map.obstacle.sum() >= a[-1].map.obstacle.sum()

@@ -135,3 +135,7 @@ def test_every_event_and_context_of_the_agent_has_words_for_the_operator() -> No
     assert set(CONTEXT_WORDS) == {c.value for c in Context}
     step = {"step": 40, "event": "frontier", "context": ["no_way_yet"], "action_name": "MOVE_FORWARD"}
     assert step_words(step).startswith("Step 41: exploring (no way to the object yet, looking for one)")
+    stop = {"step": 22, "event": "stop_at_goal", "context": ["from_memory"], "action_name": "STOP"}
+    assert step_words(stop).startswith(
+        "Step 23: at the object and facing it: stopping (known from memory only, not seen again in this run)"
+    )
