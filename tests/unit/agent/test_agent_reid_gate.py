@@ -198,14 +198,23 @@ def _views():
     return goal, same, other
 
 
-def test_exit_stage_stops_an_unrelated_frame_and_leaves_a_matching_one_untouched():
-    """The gate's second stage: LighterGlue's head after layer 2 scores the frame; below the exit
-    threshold the frame stops there (score 0, full matcher False, its exit score recorded); above
-    it, the frame gets exactly the score it gets without the stage."""
+@pytest.mark.parametrize("exit_keypoints", [0, 384])
+def test_exit_stage_stops_an_unrelated_frame_and_leaves_a_matching_one_untouched(exit_keypoints):
+    """The gate's second stage: LighterGlue's head after layer 2 scores the frame (on all keypoints,
+    or on each side's top 384); below the exit threshold the frame stops there (score 0, full
+    matcher False, its exit score recorded); above it, the frame gets exactly the score it gets
+    without the stage."""
     from agent.reid.identifier import make_matcher
 
     goal, same, other = _views()
-    cfg = ReIDConfig(tau=5.0, gate=True, gate_threshold=0.0, gate_exit_threshold=5.0, num_threads=1)
+    cfg = ReIDConfig(
+        tau=5.0,
+        gate=True,
+        gate_threshold=0.0,
+        gate_exit_threshold=5.0,
+        num_threads=1,
+        gate_exit_keypoints=exit_keypoints,
+    )
     matcher = make_matcher(cfg)
     assert matcher.exit_layer == 2
     gated = ReIdentifier(cfg, matcher=matcher)
@@ -229,6 +238,31 @@ def test_exit_stage_stops_an_unrelated_frame_and_leaves_a_matching_one_untouched
     assert ReIdentifier(cfg, matcher=VectorMatcher({})).exit_threshold is None
     with pytest.raises(ValueError, match="layer"):
         ReIdentifier(replace(cfg, gate_exit_layer=3), matcher=matcher)
+    with pytest.raises(ValueError, match="keypoints"):  # a threshold for another number of keypoints
+        ReIdentifier(replace(cfg, gate_exit_keypoints=exit_keypoints + 128), matcher=matcher)
+
+
+def test_exit_stage_on_the_top_keypoints_sees_only_them():
+    """With ``gate_exit_keypoints`` the exit stage scores the first K keypoints of each side (XFeat's
+    best): exactly the all-keypoints stage on the two sides cut to K, and not the same as on all of
+    them. ``exit_stage`` stops after the exit layer whatever the score."""
+    from agent.reid.identifier import make_matcher
+    from agent.reid.xfeat import top_keypoints
+
+    goal, same, _ = _views()
+    top = make_matcher(ReIDConfig(gate=True, num_threads=1, gate_exit_keypoints=256))
+    every = make_matcher(ReIDConfig(gate=True, num_threads=1, gate_exit_keypoints=0))
+    assert (top.exit_keypoints, every.exit_keypoints) == (256, 0)
+    g, o = top.extract(goal, 1024), top.extract(same, 1024)
+    assert len(g) > 256 and len(o) > 256
+    on_top = top.exit_stage(g, o)
+    assert top.layers_run == 2 and not top.exited
+    cut = every.exit_stage(top_keypoints(g, 256), top_keypoints(o, 256))
+    on_all = every.exit_stage(g, o)
+    assert on_top == pytest.approx(cut) and on_top["count"] <= 256
+    assert on_all["count"] > on_top["count"] and on_all["conf"] > on_top["conf"] > 0
+    assert top_keypoints(o, 256).keypoints_xy.tolist() == o.keypoints_xy[:256].tolist()
+    assert top_keypoints(o, 5000) is o  # fewer than K: the features themselves
 
 
 def test_exit_threshold_from_config_or_calibration_file(tmp_path):
@@ -249,9 +283,21 @@ def test_exit_threshold_from_config_or_calibration_file(tmp_path):
     f.write_text(json.dumps(base))  # calibrated before the exit stage: off
     assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) is None
     f.write_text(json.dumps({**base, "gate_exit_layer": 2, "gate_exit_threshold": 6.5}))
-    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 6.5
-    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_layer=3)) is None
-    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=60.0)) is None
+    assert (
+        resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_layer=3, gate_exit_keypoints=0))
+        is None
+    )
+    # a file without ``gate_exit_keypoints`` was calibrated on all keypoints: off for the top 384
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_keypoints=0)) == 6.5
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_keypoints=384)) is None
+    f.write_text(json.dumps({**base, "gate_exit_layer": 2, "gate_exit_keypoints": 384, "gate_exit_threshold": 4.0}))
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f))) == 4.0
+    assert resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), gate_exit_keypoints=256)) is None
+    f.write_text(json.dumps({**base, "gate_exit_layer": 2, "gate_exit_threshold": 6.5}))
+    assert (
+        resolve_exit_threshold(ReIDConfig(gate=True, calibration_file=str(f), tau=60.0, gate_exit_keypoints=0)) is None
+    )
     # matchers are shared per key: the exit layer (a hook) makes matchers of its own
     assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=False))
     assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=True, gate_exit_layer=3))
+    assert matcher_key(ReIDConfig(gate=True)) != matcher_key(ReIDConfig(gate=True, gate_exit_keypoints=0))

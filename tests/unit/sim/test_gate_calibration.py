@@ -85,6 +85,7 @@ def test_calibrate_gate_writes_the_threshold_the_agent_reads(tmp_path: Path, mon
     # records carry no exit scores), that keeps every positive pair here (the 6 same-image pairs:
     # too few to drop one) and is above 0 (their first two layers already match much of each other)
     assert written["gate_exit_layer"] == 2 and written["gate_exit_threshold"] == result["exit_threshold"]
+    assert written["gate_exit_keypoints"] == ReIDConfig().gate_exit_keypoints == 384  # the setting it holds for
     pairs = written["gate_exit_sources"]["goal-image pairs"]
     assert set(written["gate_exit_sources"]) == {"goal-image pairs"} and pairs["dropped_share_at_threshold"] == 0.0
     assert 0 < result["exit_threshold"] <= pairs["direct"] and (out / "xfeat_lighterglue_conf_gate_exit.png").is_file()
