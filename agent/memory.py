@@ -82,9 +82,6 @@ class MemoryConfig:
     heading_bins: int = 8  # ... and heading: 8 bins of 45 deg (the robot turns by 30 deg)
     max_keyframes: int = 200  # 160 kB each with 1024 XFeat keypoints: 32 MB at most
     max_age_goals: int = 8  # a keyframe serves the next this-many goals after its own
-    # frames seen near a candidate (approaching, verifying: not searching) kept too, in places of
-    # their own, so that they never replace a searching frame of the same place and heading
-    near_keyframes: bool = False
     # the full matcher scores the keyframes with the most mutual-nearest descriptor pairs with the
     # goal, this many of them (each costs what a live frame's full match costs)
     recall_keyframes: int = 8
@@ -159,7 +156,6 @@ class Keyframe:
     image_size_wh: tuple[int, int]
     points_xyz: np.ndarray
     extra: dict[str, Any] = field(default_factory=dict)
-    searching: bool = True  # seen while searching (False: near a candidate: ``MemoryConfig.near_keyframes``)
 
     @property
     def frame_id(self) -> int:
@@ -284,8 +280,7 @@ class HomeMemory:
         self.goals: list[GoalSummary] = []
         self.last_pose: Pose2D | None = None
         self.matcher: str | None = None  # the matcher whose descriptors are kept
-        # place, heading and whether searching -> keyframe, oldest first
-        self._keyframes: dict[tuple[int, int, int, bool], Keyframe] = {}
+        self._keyframes: dict[tuple[int, int, int], Keyframe] = {}  # place and heading -> keyframe, oldest first
         self._next_id = 0
 
     # --- the store --------------------------------------------------------------------
@@ -309,35 +304,25 @@ class HomeMemory:
             return 0
         return sum(int(getattr(self.grid.layers, n).nbytes) for n in self.grid.layers.names())
 
-    def key(self, pose: Pose2D, searching: bool = True) -> tuple[int, int, int, bool]:
-        """The place and heading bin of a pose, and whether the frame was seen while searching."""
+    def key(self, pose: Pose2D) -> tuple[int, int, int]:
+        """The place and heading bin of a pose."""
         c, n = self.config.cell_m, self.config.heading_bins
         return (
             math.floor(pose.x_m / c),
             math.floor(pose.y_m / c),
             round(pose.yaw_rad / (2 * math.pi / n)) % n,
-            bool(searching),
         )
 
     def offer(
-        self,
-        obs: Observation,
-        features: Features,
-        points_xyz: np.ndarray,
-        matcher: str,
-        min_points: int = 2,
-        searching: bool = True,
+        self, obs: Observation, features: Features, points_xyz: np.ndarray, matcher: str, min_points: int = 2
     ) -> Keyframe | None:
         """Keep this frame as the keyframe of its place and heading (the newest wins), unless
         fewer than ``min_points`` of its keypoints have a 3D point (it could localise nothing).
         ``points_xyz``: (N, 3) per keypoint, NaN rows where none (``GoalLocaliser.keypoint_points``).
-        ``searching``: seen while searching; a frame seen near a candidate is kept only with
-        ``near_keyframes``, in a place and heading of its own. Returns the keyframe kept, or None."""
+        Returns the keyframe kept, or None."""
         if self.goal_index < 0:
             raise RuntimeError("HomeMemory.begin_goal() first")
         if self.config.max_keyframes == 0 or len(features) == 0 or features.descriptors is None:
-            return None
-        if not searching and not self.config.near_keyframes:
             return None
         if len(points_xyz) != len(features):
             raise ValueError(f"{len(points_xyz)} points for {len(features)} keypoints")
@@ -357,10 +342,9 @@ class HomeMemory:
             (int(features.image_size_wh[0]), int(features.image_size_wh[1])),
             np.asarray(points_xyz, np.float32),
             _pack(dict(features.extra)),
-            bool(searching),
         )
         self._next_id += 1
-        key = self.key(obs.pose, searching)
+        key = self.key(obs.pose)
         self._keyframes.pop(key, None)  # the newest of a place and heading wins (and goes last)
         self._keyframes[key] = kf
         while len(self._keyframes) > self.config.max_keyframes:
@@ -370,7 +354,7 @@ class HomeMemory:
     def restore(self, keyframes: list[Keyframe], next_id: int) -> None:
         """Put back keyframes read from a file (``console.home_memory``), oldest first, each under
         its place and heading, and the next keyframe id. Serialisation only: no bounds are applied."""
-        self._keyframes = {self.key(kf.pose, kf.searching): kf for kf in keyframes}
+        self._keyframes = {self.key(kf.pose): kf for kf in keyframes}
         self._next_id = int(next_id)
 
     # --- goals ------------------------------------------------------------------------

@@ -243,20 +243,14 @@ class ModIINAgent:
             self.shortlist.offer(obs, result.gate_score if result.gate_score is not None else score)
         candidates = self._evaluate(self.localiser.candidates(self.grid, self.tau))
         timings["localisation"] = _ms(t)
-        keep = self.home_memory is not None and (searching or self.home_memory.config.near_keyframes)
-        if keep and result is not None and result.features is not None:
+        if self.home_memory is not None and searching and result is not None and result.features is not None:
             # a keyframe for later goals: the features just extracted, each keypoint's 3D point
             t = time.perf_counter()
             feats = result.features
-            assert self.reid is not None and self.home_memory is not None  # it made the features
+            assert self.reid is not None  # it made the features
             points = self.localiser.keypoint_points(obs, feats.keypoints_xy)
             self.home_memory.offer(
-                obs,
-                feats,
-                points,
-                self.reid.matcher.name,
-                self.config.localisation.min_points_per_frame,
-                searching=searching,
+                obs, feats, points, self.reid.matcher.name, self.config.localisation.min_points_per_frame
             )
             timings["memory"] = _ms(t)
 

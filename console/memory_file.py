@@ -189,7 +189,6 @@ def memory_bytes(
             "image_size_wh": list(kf.image_size_wh),
             "points_xyz": arrays.add(kf.points_xyz),
             "extra": _encode(kf.extra, arrays),
-            "searching": kf.searching,
         }
         for kf in memory.keyframes
     ]
@@ -291,7 +290,6 @@ def memory_file_from_bytes(data: bytes, config: MemoryConfig, mapping: MappingCo
                     (int(k["image_size_wh"][0]), int(k["image_size_wh"][1])),
                     pts,
                     _decode(k["extra"], arrays),
-                    bool(k.get("searching", True)),  # written before near keyframes: all searching
                 )
             )
         memory.restore(keyframes, int(meta["next_id"]))

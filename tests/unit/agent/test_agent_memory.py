@@ -202,31 +202,6 @@ def test_the_memory_keeps_one_keyframe_per_place_and_heading_the_newest():
     assert mem.size_bytes == 4 * (10 * 8 * 2 + 10 * 2 * 4 + 10 * 3 * 4)
 
 
-def test_frames_seen_near_a_candidate_are_kept_only_when_asked_and_never_replace_a_searching_one():
-    def offer(mem: HomeMemory, step: int, searching: bool):
-        obs = observation([], Pose2D(0.5, 0.5, 0.0), step=step)
-        return mem.offer(obs, _features(10), np.ones((10, 3), np.float32), "colour", searching=searching)
-
-    off = HomeMemory(MemoryConfig(max_keyframes=10))
-    off.begin_goal(AgentConfig().mapping)
-    a = offer(off, 0, True)
-    assert offer(off, 1, False) is None and off.keyframes == (a,)  # the default: searching frames only
-
-    on = HomeMemory(MemoryConfig(max_keyframes=10, near_keyframes=True))
-    on.begin_goal(AgentConfig().mapping)
-    s0 = offer(on, 0, True)
-    n0 = offer(on, 1, False)  # same place and heading, near a candidate: a place of its own
-    assert s0 is not None and n0 is not None and on.keyframes == (s0, n0)
-    assert s0.searching and not n0.searching
-    n1 = offer(on, 2, False)  # the newest near frame replaces the older near one ...
-    s1 = offer(on, 3, True)  # ... and the newest searching frame the older searching one
-    assert on.keyframes == (n1, s1)
-    # read back from its place keys, each keyframe goes back to its own place
-    back = HomeMemory(MemoryConfig(max_keyframes=10, near_keyframes=True))
-    back.restore(list(on.keyframes), 4)
-    assert back.keyframes == (n1, s1)
-
-
 def test_the_memory_is_bounded_in_count_and_in_age():
     mem = HomeMemory(MemoryConfig(max_keyframes=3, max_age_goals=1))
     mapping = AgentConfig().mapping
