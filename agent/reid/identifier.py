@@ -168,9 +168,14 @@ def _threshold_in_file(config: ReIDConfig, path: Path, data: dict, key: str, off
 def matcher_key(config: ReIDConfig) -> tuple:
     """What makes two configs' matchers interchangeable (a cache of matchers is keyed by it):
     everything ``make_matcher`` builds from, the exit layer included."""
+    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, *_exit_settings(config))
+
+
+def _exit_settings(config: ReIDConfig) -> tuple[int, int]:
+    """(exit layer, exit keypoints) the matcher is built with: the stage exists only where the gate
+    runs or is recorded (0, 0: none)."""
     exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
-    exit_keypoints = config.gate_exit_keypoints if exit_layer else 0
-    return (config.matcher, config.max_side_px, config.min_confidence, config.sift_ratio, exit_layer, exit_keypoints)
+    return exit_layer, (config.gate_exit_keypoints if exit_layer else 0)
 
 
 def make_matcher(config: ReIDConfig) -> Matcher:
@@ -181,12 +186,9 @@ def make_matcher(config: ReIDConfig) -> Matcher:
     if config.matcher == "xfeat_lighterglue":
         from agent.reid.xfeat import XFeatLighterGlue
 
-        exit_layer = config.gate_exit_layer if (config.gate or config.gate_shadow) else 0
+        exit_layer, exit_keypoints = _exit_settings(config)
         return XFeatLighterGlue(
-            config.max_side_px,
-            config.min_confidence,
-            exit_layer=exit_layer,
-            exit_keypoints=config.gate_exit_keypoints if exit_layer else 0,
+            config.max_side_px, config.min_confidence, exit_layer=exit_layer, exit_keypoints=exit_keypoints
         )
     if config.matcher == "aliked_lightglue":
         from agent.reid.aliked import AlikedLightGlue
