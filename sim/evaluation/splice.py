@@ -68,6 +68,7 @@ class ActsAt:
     from_step: int | None = None
     rejected: bool = False
     in_mode: str | None = None
+    in_mode_steps: int = 1  # ... at least this many steps (the fresh map: the rescans spent, 3 x 12)
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -80,7 +81,8 @@ class ActsAt:
         if self.rejected:
             return first_score_step(rec) if rejected_any(rec) else None
         if self.in_mode is not None:
-            return first_score_step(rec) if ((rec.get("modiin") or {}).get("modes") or {}).get(self.in_mode) else None
+            spent = ((rec.get("modiin") or {}).get("modes") or {}).get(self.in_mode) or 0
+            return first_score_step(rec) if spent >= max(self.in_mode_steps, 1) else None
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -93,6 +95,8 @@ class ActsAt:
         if self.rejected:
             return "the base rejected no candidate"
         if self.in_mode is not None:
+            if self.in_mode_steps > 1:
+                return f"the base spent fewer than {self.in_mode_steps} steps in mode {self.in_mode!r}"
             return f"the base spent no step in mode {self.in_mode!r}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
 
@@ -241,13 +245,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="instead: the change acts only where the base spent a step in MODE "
         "(a look from the verify ring, policy.verify_ring_tau_ratio: verify)",
     )
+    p.add_argument(
+        "--in-mode-steps",
+        type=int,
+        default=1,
+        metavar="N",
+        help="with --in-mode: at least N steps in MODE (the fresh map acts once the rescans are spent: "
+        "rescan, max_rescans x look_around_turns = 36)",
+    )
     args = p.parse_args(argv)
     if args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
     elif args.rejected:
         acts_at = ActsAt(rejected=True)
     elif args.in_mode:
-        acts_at = ActsAt(in_mode=args.in_mode)
+        acts_at = ActsAt(in_mode=args.in_mode, in_mode_steps=args.in_mode_steps)
     elif args.oscillation:
         acts_at = ActsAt(oscillation=args.oscillation)
     else:

@@ -195,3 +195,8 @@ def test_a_change_in_one_mode_splices_only_where_the_base_spent_a_step_in_it(tmp
     (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (verified, direct)))
     assert main([str(tmp_path / "base"), "--list", "--in-mode", "verify"]) == 0
     assert capsys.readouterr().out.split() == ["v"]
+    # at least N steps in the mode: 2 verify steps are enough for 2, not for 3
+    assert ActsAt(in_mode="verify", in_mode_steps=2).untouched(verified) == 3
+    assert ActsAt(in_mode="verify", in_mode_steps=3).untouched(verified) is None
+    assert main([str(tmp_path / "base"), "--list", "--in-mode", "verify", "--in-mode-steps", "3"]) == 0
+    assert capsys.readouterr().out.split() == []
