@@ -68,15 +68,6 @@ class PolicyConfig:
     unreachable_forgive: int = 1
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
-    # A fresh map when exploration runs out early: once the rescans are spent with at least this
-    # many steps of the budget left, the map's geometry (obstacles, explored area, collision
-    # marks) is forgotten and the robot looks around and explores again before the last resort;
-    # candidates, rejections and where the robot has been are kept. Once a run; 0: off. With a
-    # drifting pose and noisy depth the map accumulates walls drawn a little off from every
-    # earlier pose and range, and those copies close doorways for good (the obstacle evidence
-    # clears only what is seen through from within 3 m); a map begun again from where the robot
-    # stands carries none of them (docs/experiments/fresh-map.md)
-    fresh_map_min_steps_left: int = 250
     # when exploration is exhausted, go to the rejected candidate with the best evidence (highest
     # re-ID score of its views) and stop there, trusted, instead of stopping where the robot
     # stands: with nothing left to explore, the best rejected guess beats any other spot

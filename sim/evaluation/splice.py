@@ -68,7 +68,9 @@ class ActsAt:
     from_step: int | None = None
     rejected: bool = False
     in_mode: str | None = None
-    in_mode_steps: int = 1  # ... at least this many steps (the fresh map: the rescans spent, 3 x 12)
+    in_mode_steps: int = (
+        1  # ... at least this many steps (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
+    )
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -250,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         type=int,
         default=1,
         metavar="N",
-        help="with --in-mode: at least N steps in MODE (the fresh map acts once the rescans are spent: "
+        help="with --in-mode: at least N steps in MODE (a change that acts once the rescans are spent: "
         "rescan, max_rescans x look_around_turns = 36)",
     )
     args = p.parse_args(argv)
