@@ -68,9 +68,8 @@ class ActsAt:
     from_step: int | None = None
     rejected: bool = False
     in_mode: str | None = None
-    in_mode_steps: int = (
-        1  # ... at least this many steps (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
-    )
+    # ... at least this many steps in it (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
+    in_mode_steps: int = 1
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
