@@ -35,6 +35,10 @@ two runs share the goal, not the start: each starts where its own run ended the 
 
 ``--all`` uses each run's own episodes for the first table instead (unpaired).
 
+``--outcomes`` adds one more table: each common episode that some run failed, one column a run,
+the cell the failure's cause (``-`` for a success). It tells which failures of a run several
+runs share, e.g. which of the full noise profile's failures each component alone repeats.
+
 ``--identical`` checks a change meant to leave the agent alone (a refactoring): on the episodes
 both runs have, every field of each record must be equal, apart from timings (``timing``,
 ``modiin.median_ms``, a multi-goal subtask's ``memory.recall_ms``) and the fields named with
@@ -218,8 +222,9 @@ def _signed_ci(value: float, ci: Sequence[float]) -> str:
     return f"{value:+.3f} [{ci[0]:+.2f}, {ci[1]:+.2f}]"
 
 
-def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
-    """The three Markdown tables described in the module docstring."""
+def compare(out_dirs: Sequence[str], paired: bool = True, outcomes: bool = False) -> str:
+    """The Markdown tables described in the module docstring (``outcomes``: also the table of
+    the episodes some run failed)."""
     if len(out_dirs) < 1:
         raise ValueError("give at least one evaluation output")
     raw = [load_records(d) for d in out_dirs]
@@ -317,7 +322,35 @@ def compare(out_dirs: Sequence[str], paired: bool = True) -> str:
             )
     if any(multi) and paired:
         lines += _first_and_later(out_dirs, raw, runs)
+    if outcomes and common:
+        lines += outcome_table(out_dirs, runs, common)
     return "\n".join(lines)
+
+
+def outcome_table(
+    out_dirs: Sequence[str], runs: Sequence[Mapping[str, Mapping[str, Any]]], common: Sequence[str]
+) -> list[str]:
+    """One row per episode of ``common`` that some run failed: its cause in each run (``-``: success)."""
+    failed = [k for k in common if not all(recs[k]["success"] for recs in runs)]
+    lines = [
+        "",
+        f"Episodes some run failed ({len(failed)} of {len(common)}; the cause in each run, - for a success; "
+        "runs in the order given):",
+        "",
+        "| episode | " + " | ".join(f"{i + 1}" for i in range(len(runs))) + " | failed in |",
+        "| --- |" + " --- |" * (len(runs) + 1),
+    ]
+    for k in failed:
+        cells = [
+            "-"
+            if recs[k]["success"]
+            else str(recs[k].get("failure_cause") or ("error" if recs[k].get("error") else "unattributed"))
+            for recs in runs
+        ]
+        lines.append(f"| {k} | " + " | ".join(cells) + f" | {sum(c != '-' for c in cells)} of {len(runs)} |")
+    lines.append("")
+    lines += [f"{i + 1}: {_label(d, recs)}" for i, (d, recs) in enumerate(zip(out_dirs, runs))]
+    return lines
 
 
 STUCK_TURNS = 10  # a run of alternating turns this long is a robot stuck on one spot
@@ -440,6 +473,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("out_dirs", nargs="+", help="imgnav eval output directories; the first is the base")
     ap.add_argument("--all", action="store_true", help="first table on each run's own episodes (unpaired)")
     ap.add_argument(
+        "--outcomes", action="store_true", help="also each episode some run failed, with its cause in every run"
+    )
+    ap.add_argument(
         "--identical",
         action="store_true",
         help="check that the second run's records equal the first's, field for field, apart from timings",
@@ -463,7 +499,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"(timings{' and ' + ', '.join(args.ignore) if args.ignore else ''} left out)"
             )
             return 0 if not lines else 1
-        print(compare(args.out_dirs, paired=not args.all))
+        print(compare(args.out_dirs, paired=not args.all, outcomes=args.outcomes))
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -212,3 +212,26 @@ def test_runs_of_turns_to_and_fro_stands_and_the_stuck_table(tmp_path):
     assert STUCK_TURNS <= 12 and STAND_STEPS <= 133
     assert f"| {b} (v) | 1 | 1 | 134 | 1 | 132 | 120 |" in rows
     assert f"| {v} (v) | 0 | 0 | 5 | 0 | 0 | 3 |" in rows  # b0: a turn run of 3, 5 steps within 0.5 m
+
+
+def test_outcomes_lists_each_episode_some_run_failed_with_its_cause_in_every_run(tmp_path):
+    base = write(tmp_path, "base", BASE)
+    var = write(
+        tmp_path,
+        "var",
+        [
+            rec("a0", 1, False, cause="exploration"),
+            rec("a1", 1, True),
+            rec("b0", 2, False, cause="mapping_ghosts"),
+            rec("b1", 2, True),
+        ],
+    )
+    text = compare([base, var], outcomes=True)
+    rows = [line for line in text.splitlines() if line.startswith("| a") or line.startswith("| b")]
+    assert rows == [
+        "| a0 | - | exploration | 1 of 2 |",
+        "| a1 | reid_false_negative | - | 1 of 2 |",
+        "| b0 | local_navigation | mapping_ghosts | 2 of 2 |",
+    ]  # b1 succeeded in both: not listed
+    assert "Episodes some run failed (3 of 4" in text
+    assert "Episodes some run failed" not in compare([base, var])
