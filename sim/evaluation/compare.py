@@ -275,7 +275,7 @@ def compare(out_dirs: Sequence[str], paired: bool = True, outcomes: bool = False
         ]
         for d, recs in zip(out_dirs, runs):
             failed = [recs[k] for k in common if not recs[k]["success"]]
-            c = Counter(r.get("failure_cause") or ("error" if r.get("error") else "unattributed") for r in failed)
+            c = Counter(failure_of(r) for r in failed)
             other = sum(v for k, v in c.items() if k not in FAILURE_CLASSES)
             lines.append(
                 f"| {_label(d, recs)} | {len(failed)} | "
@@ -327,6 +327,11 @@ def compare(out_dirs: Sequence[str], paired: bool = True, outcomes: bool = False
     return "\n".join(lines)
 
 
+def failure_of(rec: Mapping[str, Any]) -> str:
+    """A failed record's cause: its attribution, else ``error`` or ``unattributed``."""
+    return str(rec.get("failure_cause") or ("error" if rec.get("error") else "unattributed"))
+
+
 def outcome_table(
     out_dirs: Sequence[str], runs: Sequence[Mapping[str, Mapping[str, Any]]], common: Sequence[str]
 ) -> list[str]:
@@ -341,12 +346,7 @@ def outcome_table(
         "| --- |" + " --- |" * (len(runs) + 1),
     ]
     for k in failed:
-        cells = [
-            "-"
-            if recs[k]["success"]
-            else str(recs[k].get("failure_cause") or ("error" if recs[k].get("error") else "unattributed"))
-            for recs in runs
-        ]
+        cells = ["-" if recs[k]["success"] else failure_of(recs[k]) for recs in runs]
         lines.append(f"| {k} | " + " | ".join(cells) + f" | {sum(c != '-' for c in cells)} of {len(runs)} |")
     lines.append("")
     lines += [f"{i + 1}: {_label(d, recs)}" for i, (d, recs) in enumerate(zip(out_dirs, runs))]
