@@ -68,7 +68,9 @@
   const droppedWords = (d) => d
     ? ` Dropped ${new Date(d.at_s * 1000).toLocaleString()}${d.run_id ? ` (run ${d.run_id})` : ""}: ${d.reason}.`
     : "";
+  let memorySeq = 0;  // refreshes overlap (a run's word, then its end): only the latest may write
   async function refreshMemory() {
+    const seq = ++memorySeq;
     const home = homeChosen();
     memoryHome = home;
     $("memory-card").hidden = !home;
@@ -77,7 +79,7 @@
     let m;
     try { m = await imgnav.getJSON(`/api/memory/${encodeURIComponent(home)}`); }
     catch (e) { memoryError(e.message); return; }
-    if (memoryHome !== home) return;  // another home was chosen meanwhile
+    if (memoryHome !== home || seq !== memorySeq) return;  // another home chosen, or a later refresh meanwhile
     memoryError("");
     const requests = m.goals.length;
     $("memory-words").textContent = (requests

@@ -220,9 +220,15 @@ def test_the_memory_panel_shows_the_robots_home_and_why_it_was_dropped(browser, 
         left = fake.pose_world
         fake.push_base(Pose2D(left.x_m, left.y_m - 1.0, left.yaw_rad))  # moved by hand between runs
         pushed = robot_run("1")
-        words = poll(lambda: page.text_content("#memory-words") or "", lambda t: "Dropped" in t, 30, "the drop")
+        # the pushed run's own memory, from nothing, with the drop's words (the page shows the drop
+        # first, at the run's start, and its own request once the run has ended)
+        words = poll(
+            lambda: page.text_content("#memory-words") or "",
+            lambda t: "Dropped" in t and t.startswith("1 request"),
+            30,
+            "the drop and the pushed run's own request",
+        )
         assert f"(run {pushed}): the robot starts 1.00 m and 0 deg from where run {again['id']} left it" in words, words
-        assert words.startswith("1 request")  # the pushed run's own, from nothing
         log = poll(
             lambda: page.text_content("#log") or "", lambda t: f"the memory of {home} is dropped" in t, 30, "log"
         )
