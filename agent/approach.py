@@ -28,6 +28,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from agent.candidates import CandidateMemory, GoalCandidate
@@ -293,9 +294,18 @@ class CandidateNavigator:
         retry: Callable[[PolicyState], Outcome], mode: Mode, event: Event,
     ) -> Outcome:  # fmt: skip
         """No plan to the candidate (or its verify ring) this step: after ``unreachable_goal_steps``
-        in a row, drop the collision marks once and ``retry``, else reject it ("<why> for N steps");
-        before that, keep turning: the map may open a way (a new view, a cleared collision)."""
-        a = replace(st.approach, unreachable_steps=st.approach.unreachable_steps + 1)
+        in a row without getting nearer to it, drop the collision marks once and ``retry``, else
+        reject it ("<why> for N steps"). Before that, go as near to it as the map allows
+        (``_go_nearer``), else turn: the map may open a way (a new view, a cleared collision)."""
+        a = st.approach
+        if a.target_xy_m is None or math.dist(a.target_xy_m, cand.centroid_xy_m) > 0.5:  # a new candidate
+            a = replace(a, target_xy_m=cand.centroid_xy_m, best_distance_m=math.inf, stall_steps=0,
+                        unreachable_steps=0, collisions_forgiven=0, nearer_best_m=math.inf)  # fmt: skip
+        stop_cells = stop_cells_of(scene.grid, cand, self.config)
+        to_m = self._distance_to(scene.grid, scene.obs.pose, stop_cells)
+        if to_m < a.nearer_best_m - 0.05:  # nearer than ever in this spell: the count starts again
+            a = replace(a, nearer_best_m=to_m, unreachable_steps=0)
+        a = replace(a, unreachable_steps=a.unreachable_steps + 1)
         st = replace(st, approach=a)
         if a.unreachable_steps >= self.config.unreachable_goal_steps:
             forgiven, st = self.forgive_before_reject(scene, st)
@@ -305,9 +315,59 @@ class CandidateNavigator:
                 return None, self.no_way(st, cand)
             return None, self.reject(scene, st, cand, f"{why} for {a.unreachable_steps} steps")
         planner_error = f"{exc.reason}: {exc}"
+        nearer = self._go_nearer(scene, st, cand, stop_cells, to_m)
+        if nearer is not None:
+            plan, field = nearer
+            action, st = self.steer(scene, st, plan, field)
+            return Decision(
+                action, mode, Event.GO_NEARER, event_facts(to_m=to_m), plan=plan, target_kind="goal",
+                candidate=cand, planner_error=planner_error,
+            ), st  # fmt: skip
         return Decision(
             Action.TURN_LEFT, mode, event, target_kind="goal", candidate=cand, planner_error=planner_error
         ), st
+
+    @staticmethod
+    def _distance_to(grid: GridMap, pose: Pose2D, cells: np.ndarray) -> float:
+        """The straight-line distance (m) from the robot to the nearest of ``cells`` (H, W) bool."""
+        ij = np.argwhere(cells)
+        if len(ij) == 0:
+            return math.inf
+        xy = grid.ij_to_xy(ij)
+        return float(np.min(np.hypot(xy[:, 0] - pose.x_m, xy[:, 1] - pose.y_m)))
+
+    def _go_nearer(
+        self, scene: Scene, st: PolicyState, cand: Candidate, stop_cells: np.ndarray, to_m: float
+    ) -> tuple[Plan, DistanceField] | None:
+        """A plan to the reachable cells nearest (in a straight line) to a candidate the map shows
+        no way to, on a side it was seen from, when they are at least ``go_nearer_min_gain_m``
+        nearer than the robot stands; else None. Under a real robot's pose error the map draws a
+        wall seen again from afar a few centimetres off, and such copies can close the way to an
+        object that was plainly seen (docs/experiments/go-nearer.md); from nearer, the map's
+        obstacle evidence is cleared by the frames that see through the copies, and the way opens
+        or the object is seen to be walled in after all. Turning in place, from afar, changes
+        neither."""
+        gain = self.config.go_nearer_min_gain_m
+        if gain <= 0 or not math.isfinite(to_m):
+            return None
+        grid, pose = scene.grid, scene.obs.pose
+        field = self.planner.distance_field(grid, pose, extra_targets=stop_cells)
+        reach = np.zeros(grid.shape, bool)
+        h, w = field.distance_m.shape
+        oi, oj = field.offset_ij
+        reach[oi : oi + h, oj : oj + w] = np.isfinite(field.distance_m)
+        reach = seen_side(grid, reach, stop_cells, np.asarray(cand.seen_from_xy_m), strict=True)
+        if not reach.any():
+            return None
+        dt = cv2.distanceTransform((~stop_cells).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        dist = np.where(reach, dt * grid.resolution_m, np.inf)
+        best = float(dist.min())
+        if best > to_m - gain:
+            return None
+        try:
+            return self.planner.plan(grid, field, pose, dist <= best + grid.resolution_m), field
+        except PlanError:
+            return None
 
     def _turn_to_face(self, pose: Pose2D, xy_m: tuple[float, float]) -> Action | None:
         """The turn towards ``xy_m`` (run frame), or None when it is within the facing tolerance."""

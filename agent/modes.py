@@ -93,12 +93,15 @@ class ApproachState:
     unreachable_steps: int = 0  # consecutive steps without a plan to it
     region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
     collisions_forgiven: int = 0  # times the collision marks were dropped before giving it up as unreachable
+    # with no plan to it: the robot's nearest (straight-line) distance to it so far in this spell
+    # without a plan; getting 5 cm nearer than that restarts ``unreachable_steps``
+    nearer_best_m: float = math.inf
 
     def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> ApproachState:
         """The state after a plan of ``distance_m`` to the candidate at ``candidate_xy_m``: a new
         candidate (centroid moved over 0.5 m) restarts the count; getting 5 cm nearer than ever
         resets the stall, anything else adds a stalled step."""
-        a = replace(self, unreachable_steps=0)
+        a = replace(self, unreachable_steps=0, nearer_best_m=math.inf)
         if a.target_xy_m is None or math.dist(a.target_xy_m, candidate_xy_m) > 0.5:
             a = replace(a, target_xy_m=candidate_xy_m, best_distance_m=math.inf, stall_steps=0, collisions_forgiven=0)
         if distance_m < a.best_distance_m - 0.05:

@@ -35,6 +35,11 @@ no step in that mode (the record's ``modes`` count) are untouched, and a re-run 
 base up to the first step with any re-identification score (no candidate, so no verification,
 exists before it).
 
+``--event EVENT`` (repeatable) splices a change that acts only at a step with one of these events
+(with no plan to a candidate, going nearer: ``--event goal_not_reachable_yet --event
+verify_ring_not_reachable_yet``, ``policy.go_nearer_min_gain_m``): the base episodes without such a
+step are untouched, and a re-run must repeat its base up to its first re-identification score.
+
 ``--list`` prints the base episodes where the change acts (the ids to re-run with
 ``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
 """
@@ -70,6 +75,10 @@ class ActsAt:
     in_mode: str | None = None
     # ... at least this many steps in it (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
     in_mode_steps: int = 1
+    # where the base's steps include one of these events (the record's ``events`` count): with no
+    # plan to a candidate, going nearer (docs/experiments/go-nearer.md) acts only where the base
+    # had no plan to one (goal_not_reachable_yet, verify_ring_not_reachable_yet)
+    events: tuple[str, ...] = ()
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -84,6 +93,9 @@ class ActsAt:
         if self.in_mode is not None:
             spent = ((rec.get("modiin") or {}).get("modes") or {}).get(self.in_mode) or 0
             return first_score_step(rec) if spent >= max(self.in_mode_steps, 1) else None
+        if self.events:
+            counts = (rec.get("modiin") or {}).get("events") or {}
+            return first_score_step(rec) if any(counts.get(e) for e in self.events) else None
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -99,6 +111,8 @@ class ActsAt:
             if self.in_mode_steps > 1:
                 return f"the base spent fewer than {self.in_mode_steps} steps in mode {self.in_mode!r}"
             return f"the base spent no step in mode {self.in_mode!r}"
+        if self.events:
+            return f"the base had no step with event {' or '.join(self.events)}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
 
 
@@ -254,8 +268,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="with --in-mode: at least N steps in MODE (a change that acts once the rescans are spent: "
         "rescan, max_rescans x look_around_turns = 36)",
     )
+    p.add_argument(
+        "--event",
+        action="append",
+        default=[],
+        metavar="EVENT",
+        help="instead: the change acts only where the base had a step with EVENT (repeatable: any of them; "
+        "going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, verify_ring_not_reachable_yet)",
+    )
     args = p.parse_args(argv)
-    if args.from_step is not None:
+    if args.event:
+        acts_at = ActsAt(events=tuple(args.event))
+    elif args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
     elif args.rejected:
         acts_at = ActsAt(rejected=True)

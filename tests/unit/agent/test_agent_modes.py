@@ -387,6 +387,61 @@ def test_a_waiting_candidate_still_unreachable_when_the_frontiers_run_out_is_rej
     assert world.distance_to_goal() > 1.0
 
 
+def _phantom_ring_run(max_steps: int = 300, **policy):
+    """two_rooms from room A, the goal in view through the door 6 m away. At the first step the
+    map gets a phantom wall all round the goal, 1.6 m from its centre (beyond the stop radius and its slack) (as the pose error draws a
+    wall seen again from afar, docs/experiments/go-nearer.md): obstacle cells seen in one frame,
+    which the obstacle evidence clears once a frame from within its clearing range sees through
+    them. The space is free."""
+    boxes, goal, _ = two_rooms()
+    world = BoxWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal)
+    agent = oracle_agent(world, **policy)
+    obs = world.observe()
+    agent.reset(obs.goal_image)
+    out = []
+    for _ in range(max_steps):
+        action = agent.act(obs)
+        d = agent.last_decision
+        if not out:
+            assert d.mode == Mode.APPROACH and d.candidate is not None
+            g = agent.grid
+            c = Pose2D(4.3, 1.3, 0.0).relative_to(Pose2D(-1.5, -1.0, 0.3))  # the goal's centre, run frame
+            t = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
+            ring = g.xy_to_ij(np.stack([c.x_m + 1.6 * np.cos(t), c.y_m + 1.6 * np.sin(t)], axis=1))
+            ring = ring[g.in_bounds(ring)]
+            g.layers.obstacle[ring[:, 0], ring[:, 1]] = True
+            g.layers.obstacle_evidence[ring[:, 0], ring[:, 1]] = 1
+        out.append((d, agent.last_record))
+        world.apply(action)
+        if action == Action.STOP:
+            break
+        obs = world.observe()
+    return world, out
+
+
+def test_with_no_way_on_the_map_the_robot_goes_nearer_before_giving_a_candidate_up():
+    # Off (policy.go_nearer_min_gain_m: 0): it turns where it stands, 6 m away, where no frame
+    # clears the phantom, and after 10 steps gives the goal up as unreachable
+    world, steps = _phantom_ring_run(go_nearer_min_gain_m=0.0, unreachable_forgive=0, last_resort=False)
+    rec = steps[-1][1]
+    assert [(c.state, c.why) for c in rec.candidates][:1] == [("rejected", "unreachable for 10 steps")]
+    assert not any(d.event == Event.GO_NEARER for d, _ in steps)
+    # On (the default): it drives towards the goal as far as the map lets it, saying so; from
+    # nearer its frames clear the phantom, a way opens and it stops at the goal, never rejecting it
+    world, steps = _phantom_ring_run(unreachable_forgive=0, last_resort=False)
+    last, rec = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert all(c.state != "rejected" for _, r in steps for c in r.candidates)
+    nearer = [i for i, (d, _) in enumerate(steps) if d.event == Event.GO_NEARER]
+    assert nearer and nearer[0] == 1 and nearer[-1] < len(steps) - 2, nearer
+    assert any(d.action == Action.MOVE_FORWARD for d, _ in steps[nearer[0] : nearer[-1] + 1])
+    to_m = [steps[i][0].facts["to_m"] for i in nearer]
+    assert to_m[0] > 4.0 and min(to_m) < to_m[0] - 1.0, to_m  # it got nearer
+    assert "no way to the candidate on the map yet: going nearer to look" in steps[nearer[0]][1].reason
+    # then a plan to the stop region (the phantom cleared from nearer)
+    assert any(d.mode == Mode.APPROACH and d.event == Event.APPROACH for d, _ in steps[nearer[-1] + 1 :])
+
+
 def _scored_agent(world, decoy, goal_score, decoy_score, **policy):
     """The matcher's scores scripted (tau 100): the goal scores ``goal_score(distance)`` where it is
     in view, the decoy ``decoy_score(distance)``; localisation from the true masks."""

@@ -200,3 +200,33 @@ def test_a_change_in_one_mode_splices_only_where_the_base_spent_a_step_in_it(tmp
     assert ActsAt(in_mode="verify", in_mode_steps=3).untouched(verified) is None
     assert main([str(tmp_path / "base"), "--list", "--in-mode", "verify", "--in-mode-steps", "3"]) == 0
     assert capsys.readouterr().out.split() == []
+
+
+def test_a_change_at_one_event_splices_only_where_the_base_had_a_step_with_it(tmp_path, capsys):
+    from sim.evaluation.splice import ActsAt
+
+    walled = rec("w", [L, L, F, L, S], "stopped")
+    walled["modiin"].update(
+        events={"look_around": 2, "goal_not_reachable_yet": 2, "stop_at_goal": 1},
+        trace={"reid_score": [0.0, 0.0, 60.0, 45.0, 0.0]},
+    )
+    ring = rec("r", [L, F, S], "stopped", home=3)
+    ring["modiin"].update(events={"verify_ring_not_reachable_yet": 1}, trace={"reid_score": [0.0, 30.0, 0.0]})
+    direct = rec("d", [F, F, S], "stopped", success=True, home=2)
+    direct["modiin"].update(events={"approach": 2, "stop_at_goal": 1}, trace={"reid_score": [90.0, 90.0, 95.0]})
+    at = ActsAt(events=("goal_not_reachable_yet", "verify_ring_not_reachable_yet"))
+    assert [at.untouched(r) for r in (walled, ring, direct)] == [2, 1, None]
+    assert ActsAt(events=("goal_not_reachable_yet",)).untouched(ring) is None
+    out = splice([walled, ring, direct], [rec("w", [L, L, F, F, S], "stopped", success=True)], at)
+    assert out[0]["success"] and out[1] is ring and out[2] is direct
+    with pytest.raises(ValueError, match="actions differ at step 1"):
+        splice([walled, ring, direct], [rec("w", [L, F, F, S], "stopped")], at)
+    with pytest.raises(ValueError, match="no step with event goal_not_reachable_yet or verify_ring"):
+        splice([walled, ring, direct], [rec("d", [F, F, F, S], "stopped", home=2)], at)
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (walled, ring, direct)))
+    argv = [str(tmp_path / "base"), "--list", "--event", "goal_not_reachable_yet"]
+    assert main([*argv, "--event", "verify_ring_not_reachable_yet"]) == 0
+    assert capsys.readouterr().out.split() == ["w", "r"]
+    assert main(argv) == 0
+    assert capsys.readouterr().out.split() == ["w"]
