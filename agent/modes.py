@@ -94,7 +94,7 @@ class ApproachState:
     region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
     collisions_forgiven: int = 0  # times the collision marks were dropped before giving it up as unreachable
     # with no plan to it: the robot's nearest (straight-line) distance to it so far in this spell
-    # without a plan; getting 5 cm nearer than that restarts ``unreachable_steps``
+    # without a plan; a step going 5 cm nearer than that is not counted in ``unreachable_steps``
     nearer_best_m: float = math.inf
 
     def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> ApproachState:
@@ -125,6 +125,10 @@ class RescanState:
     # and how many failed moves the motion memory held then
     forgiven_at: tuple[float, float] | None = None
     forgiven_failed_moves: int = 0
+    # no frontier reachable: the robot's nearest (straight-line) distance so far to the frontiers
+    # the map shows no way to, and the steps going nearer since it last got 5 cm nearer than that
+    nearer_best_m: float = math.inf
+    nearer_stalled: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -36,9 +36,11 @@ base up to the first step with any re-identification score (no candidate, so no 
 exists before it).
 
 ``--event EVENT`` (repeatable) splices a change that acts only at a step with one of these events
-(with no plan to a candidate, going nearer: ``--event goal_not_reachable_yet --event
-verify_ring_not_reachable_yet``, ``policy.go_nearer_min_gain_m``): the base episodes without such a
-step are untouched, and a re-run must repeat its base up to its first re-identification score.
+(going nearer when the map shows no way, ``policy.go_nearer_min_gain_m``: ``--event
+goal_not_reachable_yet --event verify_ring_not_reachable_yet --event rescan``): the base episodes
+without such a step are untouched, and a re-run must repeat its base up to its first
+re-identification score (a candidate's events), or is only checked to be the same episode when the
+base had a search event (a rescan can come before any score).
 
 ``--list`` prints the base episodes where the change acts (the ids to re-run with
 ``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
@@ -55,6 +57,9 @@ from pathlib import Path
 from typing import Any
 
 from sim.evaluation.runner import RECORDS, SUMMARY, _json_safe, read_records
+
+# events of the search (no goal candidate needed): they can come before any score
+SEARCH_EVENTS = frozenset({"look_around", "frontier", "rescan", "exhausted"})
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,9 +80,10 @@ class ActsAt:
     in_mode: str | None = None
     # ... at least this many steps in it (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
     in_mode_steps: int = 1
-    # where the base's steps include one of these events (the record's ``events`` count): with no
-    # plan to a candidate, going nearer (docs/experiments/go-nearer.md) acts only where the base
-    # had no plan to one (goal_not_reachable_yet, verify_ring_not_reachable_yet)
+    # where the base's steps include one of these events (the record's ``events`` count): going
+    # nearer when the map shows no way (docs/experiments/go-nearer.md) acts only where the base had
+    # no plan to a candidate (goal_not_reachable_yet, verify_ring_not_reachable_yet) or to a
+    # frontier (rescan)
     events: tuple[str, ...] = ()
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
@@ -95,7 +101,11 @@ class ActsAt:
             return first_score_step(rec) if spent >= max(self.in_mode_steps, 1) else None
         if self.events:
             counts = (rec.get("modiin") or {}).get("events") or {}
-            return first_score_step(rec) if any(counts.get(e) for e in self.events) else None
+            had = [e for e in self.events if counts.get(e)]
+            if not had:
+                return None
+            # a candidate's events come after a score; a search event (a rescan) may come first
+            return 0 if any(e in SEARCH_EVENTS for e in had) else first_score_step(rec)
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -274,7 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=[],
         metavar="EVENT",
         help="instead: the change acts only where the base had a step with EVENT (repeatable: any of them; "
-        "going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, verify_ring_not_reachable_yet)",
+        "going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, verify_ring_not_reachable_yet, rescan)",
     )
     args = p.parse_args(argv)
     if args.event:

@@ -225,6 +225,13 @@ def test_a_change_at_one_event_splices_only_where_the_base_had_a_step_with_it(tm
         splice([walled, ring, direct], [rec("d", [F, F, F, S], "stopped", home=2)], at)
     (tmp_path / "base").mkdir()
     (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (walled, ring, direct)))
+    # a search event (a rescan) can come before any score: only the episode is checked then
+    rescanned = rec("s", [L, L, S], "exhausted", home=4)
+    rescanned["modiin"].update(events={"rescan": 1}, trace={"reid_score": [0.0, 0.0, 0.0]})
+    with_rescan = ActsAt(events=("goal_not_reachable_yet", "rescan"))
+    assert [with_rescan.untouched(r) for r in (walled, rescanned, direct)] == [2, 0, None]
+    out = splice([walled, rescanned], [rec("s", [F, S], "stopped", success=True, home=4)], with_rescan)
+    assert out[1]["success"] and out[0] is walled
     argv = [str(tmp_path / "base"), "--list", "--event", "goal_not_reachable_yet"]
     assert main([*argv, "--event", "verify_ring_not_reachable_yet"]) == 0
     assert capsys.readouterr().out.split() == ["w", "r"]
