@@ -125,8 +125,10 @@ class RescanState:
     # and how many failed moves the motion memory held then
     forgiven_at: tuple[float, float] | None = None
     forgiven_failed_moves: int = 0
-    # no frontier reachable: the robot's nearest (straight-line) distance so far to the frontiers
-    # the map shows no way to, and the steps going nearer since it last got 5 cm nearer than that
+    # no frontier reachable since ... : whether a rescan was completed in that time (``looked``),
+    # the robot's nearest (straight-line) distance so far to the frontiers the map shows no way
+    # to, and the steps going nearer since it last got 5 cm nearer than that
+    looked: bool = False
     nearer_best_m: float = math.inf
     nearer_stalled: int = 0
 

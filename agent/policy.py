@@ -477,7 +477,9 @@ class ModIINAgent:
                 self.explorer.blacklist_target(grid, exc.reason)
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
-            self._set(rescan=replace(self._state.rescan, steps=0, nearer_best_m=math.inf, nearer_stalled=0))
+            self._set(
+                rescan=replace(self._state.rescan, steps=0, looked=False, nearer_best_m=math.inf, nearer_stalled=0)
+            )
             action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
             if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
@@ -498,17 +500,21 @@ class ModIINAgent:
     def _frontier_nearer(
         self, obs: Observation, front: np.ndarray, field: DistanceField, error: str | None
     ) -> Decision | None:
-        """No frontier is reachable, but the map holds frontiers it shows no way to: before a
-        rescan, go to the reachable cells nearest (in a straight line) to them when they are at
-        least ``go_nearer_min_gain_m`` nearer than the robot stands, so that the rescan looks
-        from there. A wall drawn twice under a pose error can close a doorway, and the obstacle
-        evidence clears only what a frame sees through from within ``clear_max_range_m``: a
-        rescan from afar sees the same closed map (docs/experiments/go-nearer.md). Given up for
+        """No frontier is reachable, but the map holds frontiers it shows no way to, and a rescan
+        from here found none: before the next rescan, go to the reachable cells nearest (in a
+        straight line) to them when they are at least ``go_nearer_min_gain_m`` nearer than the
+        robot stands, so that the rescan looks from there. A wall drawn twice under a pose error
+        can close a doorway, and the obstacle evidence clears only what a frame sees through from
+        within ``clear_max_range_m``: a rescan from afar sees the same closed map (docs/experiments/go-nearer.md). Given up for
         this spell (until a frontier is reachable again) after ``unreachable_goal_steps`` steps
-        without getting 5 cm nearer; only while rescans are left."""
+        without getting 5 cm nearer."""
         pc = self.config.policy
         r = self._state.rescan
-        if pc.go_nearer_min_gain_m <= 0 or r.rescans_left <= 0 or not front.any():
+        # between rescans, once one found nothing: a look around from here comes first (a turn
+        # often shows a new frontier), and a rescan under way is not broken off
+        if pc.go_nearer_min_gain_m <= 0 or not r.looked or r.rescans_left <= 0 or r.steps > 0:
+            return None
+        if not front.any():
             return None
         if r.nearer_stalled >= pc.unreachable_goal_steps:
             return None
@@ -587,7 +593,7 @@ class ModIINAgent:
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = replace(r, steps=0, rescans_left=r.rescans_left - 1)
+                r = replace(r, steps=0, rescans_left=r.rescans_left - 1, looked=True)
             else:
                 r = replace(r, steps=steps)
             self._set(rescan=r)

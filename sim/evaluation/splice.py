@@ -37,7 +37,8 @@ exists before it).
 
 ``--event EVENT`` (repeatable) splices a change that acts only at a step with one of these events
 (going nearer when the map shows no way, ``policy.go_nearer_min_gain_m``: ``--event
-goal_not_reachable_yet --event verify_ring_not_reachable_yet --event rescan``): the base episodes
+goal_not_reachable_yet --event verify_ring_not_reachable_yet --event rescan:12``; ``EVENT:N``: at least
+N steps with it): the base episodes
 without such a step are untouched, and a re-run must repeat its base up to its first
 re-identification score (a candidate's events), or is only checked to be the same episode when the
 base had a search event (a rescan can come before any score).
@@ -80,10 +81,10 @@ class ActsAt:
     in_mode: str | None = None
     # ... at least this many steps in it (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
     in_mode_steps: int = 1
-    # where the base's steps include one of these events (the record's ``events`` count): going
-    # nearer when the map shows no way (docs/experiments/go-nearer.md) acts only where the base had
-    # no plan to a candidate (goal_not_reachable_yet, verify_ring_not_reachable_yet) or to a
-    # frontier (rescan)
+    # where the base's steps include one of these events (the record's ``events`` count;
+    # ``EVENT:N``: at least N such steps): going nearer when the map shows no way
+    # (docs/experiments/go-nearer.md) acts only where the base had no plan to a candidate
+    # (goal_not_reachable_yet, verify_ring_not_reachable_yet) or had done a whole rescan (rescan:12)
     events: tuple[str, ...] = ()
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
@@ -101,7 +102,7 @@ class ActsAt:
             return first_score_step(rec) if spent >= max(self.in_mode_steps, 1) else None
         if self.events:
             counts = (rec.get("modiin") or {}).get("events") or {}
-            had = [e for e in self.events if counts.get(e)]
+            had = [e for e, n in map(_event_count, self.events) if (counts.get(e) or 0) >= n]
             if not had:
                 return None
             # a candidate's events come after a score; a search event (a rescan) may come first
@@ -124,6 +125,12 @@ class ActsAt:
         if self.events:
             return f"the base had no step with event {' or '.join(self.events)}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
+
+
+def _event_count(spec: str) -> tuple[str, int]:
+    """``EVENT`` or ``EVENT:N`` (at least N steps with it) as (event, N)."""
+    name, _, n = spec.partition(":")
+    return name, int(n) if n else 1
 
 
 def rejected_any(rec: dict[str, Any]) -> bool:
@@ -284,7 +291,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=[],
         metavar="EVENT",
         help="instead: the change acts only where the base had a step with EVENT (repeatable: any of them; "
-        "going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, verify_ring_not_reachable_yet, rescan)",
+        "EVENT:N: at least N steps with it; going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, "
+        "verify_ring_not_reachable_yet, rescan:12)",
     )
     args = p.parse_args(argv)
     if args.event:

@@ -488,17 +488,19 @@ def test_with_no_frontier_reachable_the_robot_goes_nearer_to_those_on_the_map_be
     modes = [d.mode for d, _ in steps]
     assert modes.count(Mode.RESCAN) == 36 and modes[-1] == Mode.EXHAUSTED
     assert not any(d.event == Event.GO_NEARER for d, _ in steps) and world.distance_to_goal() > 10.0
-    # On (the default): right after the look-around it drives towards the frontiers beyond the
-    # phantom, saying so; within range its frames clear the phantom, and it explores room B and
-    # stops at the goal without a rescan
+    # On (the default): the first rescan looks around where it stands (steps 12-23) and finds
+    # nothing; then it drives towards the frontiers beyond the phantom, saying so; within range
+    # its frames clear the phantom, and it explores room B and stops at the goal, with no other
+    # rescan
     world, steps = _phantom_door_run(last_resort=False)
+    modes = [d.mode for d, _ in steps]
+    assert [i for i, m in enumerate(modes) if m == Mode.RESCAN] == list(range(12, 24))
     nearer = [i for i, (d, _) in enumerate(steps) if d.event == Event.GO_NEARER]
-    assert nearer and nearer[0] == 12 and nearer == list(range(12, nearer[-1] + 1)), nearer
+    assert nearer and nearer == list(range(24, nearer[-1] + 1)), nearer
     assert all(steps[i][0].mode == Mode.EXPLORE and steps[i][0].target_kind == "frontier" for i in nearer)
     to_m = [steps[i][0].facts["to_m"] for i in nearer]
     assert to_m[0] > 7.0 and to_m[-1] < 3.5, to_m
     assert "no way on the map yet: going nearer to look" in steps[nearer[0]][1].reason
-    assert Mode.RESCAN not in [d.mode for d, _ in steps]
     assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
 
 

@@ -230,6 +230,8 @@ def test_a_change_at_one_event_splices_only_where_the_base_had_a_step_with_it(tm
     rescanned["modiin"].update(events={"rescan": 1}, trace={"reid_score": [0.0, 0.0, 0.0]})
     with_rescan = ActsAt(events=("goal_not_reachable_yet", "rescan"))
     assert [with_rescan.untouched(r) for r in (walled, rescanned, direct)] == [2, 0, None]
+    assert ActsAt(events=("rescan:2",)).untouched(rescanned) is None  # EVENT:N: at least N steps
+    assert ActsAt(events=("rescan:1",)).untouched(rescanned) == 0
     out = splice([walled, rescanned], [rec("s", [F, S], "stopped", success=True, home=4)], with_rescan)
     assert out[1]["success"] and out[0] is walled
     argv = [str(tmp_path / "base"), "--list", "--event", "goal_not_reachable_yet"]
