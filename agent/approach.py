@@ -37,7 +37,7 @@ from agent.localisation import Candidate
 from agent.mapping import GridMap
 from agent.modes import Decision, Mode, PolicyState, VerifyState
 from agent.motion import blocked_here, move_key, safe_action
-from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, nearest_reachable, region_within
+from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, region_within
 from agent.stop_region import in_sight, seen_side
 from agent.stop_region import stop_cells as stop_cells_of
 from agent.types import FORWARD_STEP_M, Action, Observation, Pose2D, wrap_angle
@@ -97,14 +97,7 @@ class CandidateNavigator:
         a = st.approach
         return replace(
             st,
-            approach=replace(
-                a,
-                best_distance_m=math.inf,
-                stall_steps=0,
-                unreachable_steps=0,
-                collisions_forgiven=0,
-                nearer_best_m=math.inf,
-            ),
+            approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0, collisions_forgiven=0),
             verify=None,
         )
 
@@ -131,7 +124,7 @@ class CandidateNavigator:
             st,
             waiting=st.waiting | {cand.id},
             waited=st.waited | {cand.id},
-            approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0, nearer_best_m=math.inf),
+            approach=replace(a, best_distance_m=math.inf, stall_steps=0, unreachable_steps=0),
             verify=None,
         )
 
@@ -299,19 +292,10 @@ class CandidateNavigator:
         self, scene: Scene, st: PolicyState, cand: Candidate, exc: PlanError, why: str,
         retry: Callable[[PolicyState], Outcome], mode: Mode, event: Event,
     ) -> Outcome:  # fmt: skip
-        """No plan to the candidate (or its verify ring) this step: go as near to it as the map
-        allows (``_go_nearer``), else turn: the map may open a way (a new view, a cleared
-        collision). After ``unreachable_goal_steps`` such steps (a step that took the robot 5 cm
-        nearer to it than ever in this spell does not count), drop the collision marks once and
-        ``retry``, else reject it ("<why> for N steps")."""
-        stop_cells = stop_cells_of(scene.grid, cand, self.config)
-        nearer = self._go_nearer(scene, cand, stop_cells)
-        to_m = self._distance_to(scene, stop_cells)
-        a = st.approach
-        if nearer is not None and to_m < a.nearer_best_m - 0.05:
-            a = replace(a, nearer_best_m=to_m)
-        else:
-            a = replace(a, unreachable_steps=a.unreachable_steps + 1)
+        """No plan to the candidate (or its verify ring) this step: after ``unreachable_goal_steps``
+        in a row, drop the collision marks once and ``retry``, else reject it ("<why> for N steps");
+        before that, keep turning: the map may open a way (a new view, a cleared collision)."""
+        a = replace(st.approach, unreachable_steps=st.approach.unreachable_steps + 1)
         st = replace(st, approach=a)
         if a.unreachable_steps >= self.config.unreachable_goal_steps:
             forgiven, st = self.forgive_before_reject(scene, st)
@@ -321,53 +305,9 @@ class CandidateNavigator:
                 return None, self.no_way(st, cand)
             return None, self.reject(scene, st, cand, f"{why} for {a.unreachable_steps} steps")
         planner_error = f"{exc.reason}: {exc}"
-        if nearer is not None:
-            plan, field = nearer
-            action, st = self.steer(scene, st, plan, field)
-            return Decision(
-                action, mode, Event.GO_NEARER, event_facts(to_m=to_m), plan=plan, target_kind="goal",
-                candidate=cand, planner_error=planner_error,
-            ), st  # fmt: skip
         return Decision(
             Action.TURN_LEFT, mode, event, target_kind="goal", candidate=cand, planner_error=planner_error
         ), st
-
-    @staticmethod
-    def _distance_to(scene: Scene, cells: np.ndarray) -> float:
-        """The straight-line distance (m) from the robot to the nearest of ``cells`` (H, W) bool."""
-        ij = np.argwhere(cells)
-        if len(ij) == 0:
-            return math.inf
-        xy = scene.grid.ij_to_xy(ij)
-        pose = scene.obs.pose
-        return float(np.min(np.hypot(xy[:, 0] - pose.x_m, xy[:, 1] - pose.y_m)))
-
-    def _go_nearer(self, scene: Scene, cand: Candidate, stop_cells: np.ndarray) -> tuple[Plan, DistanceField] | None:
-        """A plan to the reachable cells nearest (in a straight line) to a candidate the map shows
-        no way to, on a side it was seen from; None when they are not ``go_nearer_min_gain_m``
-        nearer to it than the robot stands (or the gain is 0: off).
-        Under a real robot's pose error the map draws a wall seen again from afar a few
-        centimetres off, and such copies can close the way to an object that was plainly seen
-        (docs/experiments/go-nearer.md); from nearer, the map's obstacle evidence is cleared by the
-        frames that see through the copies, and the way opens or the object is seen to be walled
-        in after all. Turning in place, from afar, changes neither."""
-        gain = self.config.go_nearer_min_gain_m
-        here = self._distance_to(scene, stop_cells)
-        if gain <= 0 or not math.isfinite(here):
-            return None
-        grid, pose = scene.grid, scene.obs.pose
-        field = self.planner.distance_field(grid, pose, extra_targets=stop_cells)
-        seen_from = np.asarray(cand.seen_from_xy_m)
-        cells, best = nearest_reachable(
-            grid.shape, field, stop_cells, grid.resolution_m,
-            keep=lambda reach: seen_side(grid, reach, stop_cells, seen_from, strict=True),
-        )  # fmt: skip
-        if best > here - gain:
-            return None
-        try:
-            return self.planner.plan(grid, field, pose, cells), field
-        except PlanError:
-            return None
 
     def _turn_to_face(self, pose: Pose2D, xy_m: tuple[float, float]) -> Action | None:
         """The turn towards ``xy_m`` (run frame), or None when it is within the facing tolerance."""

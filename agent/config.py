@@ -63,10 +63,6 @@ class PolicyConfig:
     verify_ring_tau_ratio: float = 0.5
     reject_radius_m: float = 0.3  # blacklist margin around a rejected candidate's cells
     unreachable_goal_steps: int = 10  # consecutive unreachable plans before a candidate is dropped
-    # ... without getting nearer: with no plan to a candidate, the robot first goes to the reachable
-    # cells nearest to it when they are at least this much nearer than where it stands (0: off;
-    # agent/approach.py ``_go_nearer``, docs/experiments/go-nearer.md)
-    go_nearer_min_gain_m: float = 0.5
     # before that, drop the collision marks and count again, this many times per candidate (0: off):
     # failed moves near an object leave bands that can wall in its stop region
     unreachable_forgive: int = 1

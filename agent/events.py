@@ -25,10 +25,6 @@ class Event(str, enum.Enum):
     EXHAUSTED = "exhausted"  # STOP: nothing left to explore and no candidate
     APPROACH = "approach"  # heading for the candidate's stop region
     GOAL_NOT_REACHABLE_YET = "goal_not_reachable_yet"  # no plan to it yet: turning to see more
-    # no plan to a candidate (or its verify ring) yet, on a side it was seen from, or to any
-    # frontier: going to the reachable place nearest to it, to look from there; facts: to_m (the
-    # robot's distance to it now)
-    GO_NEARER = "go_nearer"
     FACE_GOAL = "face_goal"  # in the stop region, turning to face it
     STOP_AT_GOAL = "stop_at_goal"  # STOP: in the stop region, facing it
     VERIFY_APPROACH = "verify_approach"  # heading for the verify ring around a potential candidate
@@ -65,7 +61,6 @@ _EVENT_TEXT: dict[Event, str] = {
     Event.EXHAUSTED: "no reachable frontier and no goal candidate",
     Event.APPROACH: "navigating to the goal candidate",
     Event.GOAL_NOT_REACHABLE_YET: "goal not reachable yet",
-    Event.GO_NEARER: "no way on the map yet: going nearer to look ({to_m:.1f} m)",
     Event.FACE_GOAL: "at the goal: turning to face it",
     Event.STOP_AT_GOAL: "within stop radius, facing the goal",
     Event.VERIFY_APPROACH: "verify: approaching the potential candidate",

@@ -93,15 +93,12 @@ class ApproachState:
     unreachable_steps: int = 0  # consecutive steps without a plan to it
     region_unreachable: bool = False  # the stop region itself could not be planned to: the slack applies
     collisions_forgiven: int = 0  # times the collision marks were dropped before giving it up as unreachable
-    # with no plan to it: the robot's nearest (straight-line) distance to it so far in this spell
-    # without a plan; a step going 5 cm nearer than that is not counted in ``unreachable_steps``
-    nearer_best_m: float = math.inf
 
     def after_plan(self, candidate_xy_m: tuple[float, float], distance_m: float) -> ApproachState:
         """The state after a plan of ``distance_m`` to the candidate at ``candidate_xy_m``: a new
         candidate (centroid moved over 0.5 m) restarts the count; getting 5 cm nearer than ever
         resets the stall, anything else adds a stalled step."""
-        a = replace(self, unreachable_steps=0, nearer_best_m=math.inf)
+        a = replace(self, unreachable_steps=0)
         if a.target_xy_m is None or math.dist(a.target_xy_m, candidate_xy_m) > 0.5:
             a = replace(a, target_xy_m=candidate_xy_m, best_distance_m=math.inf, stall_steps=0, collisions_forgiven=0)
         if distance_m < a.best_distance_m - 0.05:
@@ -125,12 +122,6 @@ class RescanState:
     # and how many failed moves the motion memory held then
     forgiven_at: tuple[float, float] | None = None
     forgiven_failed_moves: int = 0
-    # no frontier reachable since ... : whether a rescan was completed in that time (``looked``),
-    # the robot's nearest (straight-line) distance so far to the frontiers the map shows no way
-    # to, and the steps going nearer since it last got 5 cm nearer than that
-    looked: bool = False
-    nearer_best_m: float = math.inf
-    nearer_stalled: int = 0
 
 
 @dataclass(frozen=True, slots=True)

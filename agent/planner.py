@@ -14,7 +14,6 @@ it (``AgentRecord.planner_error``) and reacts. They are never turned into a sile
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -239,25 +238,3 @@ def region_within(cells: np.ndarray, radius_m: float, resolution_m: float) -> np
         return np.zeros_like(cells)
     dt = cv2.distanceTransform((~cells).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return dt * resolution_m <= radius_m
-
-
-def nearest_reachable(
-    grid_shape: tuple[int, int], field: DistanceField, target: np.ndarray, resolution_m: float,
-    keep: Callable[[np.ndarray], np.ndarray] | None = None,
-) -> tuple[np.ndarray, float]:  # fmt: skip
-    """The reachable cells nearest in a straight line to ``target`` (H, W) bool, for a target the
-    map shows no way to: their mask (H, W) and their distance to it (m). ``keep`` filters the
-    reachable cells (H, W) bool before the nearest are taken. An empty mask and inf when none
-    is left or the target is empty."""
-    none = np.zeros(grid_shape, bool)
-    reach = np.zeros(grid_shape, bool)
-    h, w = field.distance_m.shape
-    oi, oj = field.offset_ij
-    reach[oi : oi + h, oj : oj + w] = np.isfinite(field.distance_m)
-    if keep is not None and reach.any():
-        reach = keep(reach)
-    if not target.any() or not reach.any():
-        return none, math.inf
-    dt = cv2.distanceTransform((~target).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * resolution_m
-    best = float(dt[reach].min())
-    return reach & (dt <= best + resolution_m), best

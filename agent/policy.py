@@ -65,7 +65,7 @@ from agent.mapping import GridMap
 from agent.memory import HomeMemory
 from agent.modes import Decision, Mode, PolicyState, RescanState
 from agent.motion import after_action, move_key
-from agent.planner import DistanceField, FMMPlanner, Plan, PlanError, nearest_reachable
+from agent.planner import FMMPlanner, Plan, PlanError
 from agent.reid.base import Matcher
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
@@ -477,9 +477,7 @@ class ModIINAgent:
                 self.explorer.blacklist_target(grid, exc.reason)
                 front = frontier_mask(grid, self.config.frontier.min_cluster_cells)
                 continue
-            self._set(
-                rescan=replace(self._state.rescan, steps=0, looked=False, nearer_best_m=math.inf, nearer_stalled=0)
-            )
+            self._set(rescan=replace(self._state.rescan, steps=0))
             action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
             if action != plan.action and self._state.motion.blocked_repeats > 3:
                 self.explorer.blacklist_target(grid, "blocked")
@@ -492,58 +490,7 @@ class ModIINAgent:
                 target_kind="frontier",
                 planner_error=error,
             )
-        nearer = self._frontier_nearer(obs, front, field, error)
-        if nearer is not None:
-            return nearer
         return self._rescan(obs, error)
-
-    def _frontier_nearer(
-        self, obs: Observation, front: np.ndarray, field: DistanceField, error: str | None
-    ) -> Decision | None:
-        """No frontier is reachable, but the map holds frontiers it shows no way to, and a rescan
-        from here found none: before the next rescan, go to the reachable cells nearest (in a
-        straight line) to them when they are at least ``go_nearer_min_gain_m`` nearer than the
-        robot stands, so that the rescan looks from there. A wall drawn twice under a pose error
-        can close a doorway, and the obstacle evidence clears only what a frame sees through from
-        within ``clear_max_range_m``: a rescan from afar sees the same closed map (docs/experiments/go-nearer.md). Given up for
-        this spell (until a frontier is reachable again) after ``unreachable_goal_steps`` steps
-        without getting 5 cm nearer."""
-        pc = self.config.policy
-        r = self._state.rescan
-        # between rescans, once one found nothing: a look around from here comes first (a turn
-        # often shows a new frontier), and a rescan under way is not broken off
-        if pc.go_nearer_min_gain_m <= 0 or not r.looked or r.rescans_left <= 0 or r.steps > 0:
-            return None
-        if not front.any():
-            return None
-        if r.nearer_stalled >= pc.unreachable_goal_steps:
-            return None
-        grid, pose = self.grid, obs.pose
-        ij = np.argwhere(front)
-        xy = grid.ij_to_xy(ij)
-        here = float(np.min(np.hypot(xy[:, 0] - pose.x_m, xy[:, 1] - pose.y_m)))
-        cells, best = nearest_reachable(grid.shape, field, front, grid.resolution_m)
-        if best > here - pc.go_nearer_min_gain_m:
-            return None
-        try:
-            plan = self.planner.plan(grid, field, pose, cells)
-        except PlanError:
-            return None
-        if here < r.nearer_best_m - 0.05:
-            r = replace(r, nearer_best_m=here, nearer_stalled=0)
-        else:
-            r = replace(r, nearer_stalled=r.nearer_stalled + 1)
-        self._set(rescan=r)
-        action, self._state = self.nav.steer(self._scene(obs), self._state, plan, field)
-        return Decision(
-            action,
-            Mode.EXPLORE,
-            Event.GO_NEARER,
-            event_facts(to_m=here),
-            plan=plan,
-            target_kind="frontier",
-            planner_error=error or "no_frontier",
-        )
 
     def _rescan(self, obs: Observation, error: str | None) -> Decision:
         # No reachable frontier. Collision marks are guesses (the blocked side of a move is
@@ -593,7 +540,7 @@ class ModIINAgent:
                     log.info("no reachable frontier: forgot the explored area carried from earlier goals")
             steps = r.steps + 1
             if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = replace(r, steps=0, rescans_left=r.rescans_left - 1, looked=True)
+                r = replace(r, steps=0, rescans_left=r.rescans_left - 1)
             else:
                 r = replace(r, steps=steps)
             self._set(rescan=r)

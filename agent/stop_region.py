@@ -74,26 +74,24 @@ def in_sight(grid: GridMap, region: np.ndarray, target: np.ndarray) -> np.ndarra
     return out if out.any() else region
 
 
-def seen_side(
-    grid: GridMap, region: np.ndarray, target: np.ndarray, seen_from_xy_m: np.ndarray, strict: bool = False
-) -> np.ndarray:
+def seen_side(grid: GridMap, region: np.ndarray, target: np.ndarray, seen_from_xy_m: np.ndarray) -> np.ndarray:
     """The cells of ``region`` on a side the candidate was seen from: the direction from the
     centre of ``target`` cells to the cell lies within 90 degrees of the direction to one of the
     places it was seen from (``Candidate.seen_from_xy_m``, run frame). What was seen is a
     surface facing those places, so a cell there can see it; a cell on the far side may face
     the wall it stands against. When no place is known, or no cell of the region is on a seen
-    side: the plain region (``strict``: no cell)."""
+    side: the plain region."""
     seen = np.asarray(seen_from_xy_m, np.float64).reshape(-1, 2)
     cells = np.argwhere(region)
     tij = np.argwhere(target)
     if len(seen) == 0 or len(cells) == 0 or len(tij) == 0:
-        return np.zeros_like(region) if strict else region
+        return region
     centre = grid.ij_to_xy(np.median(tij, axis=0)[None])[0]
     to_cell = grid.ij_to_xy(cells) - centre
     to_seen = seen - centre
     keep = ((to_cell @ to_seen.T) >= 0.0).any(axis=1)
     if not keep.any():
-        return np.zeros_like(region) if strict else region
+        return region
     out = np.zeros_like(region)
     out[cells[keep, 0], cells[keep, 1]] = True
     return out

@@ -176,7 +176,6 @@ EVENT_WORDS: dict[str, str] = {
     "exhausted": "nowhere left to explore and no candidate: giving up",
     "approach": "driving to the object",
     "goal_not_reachable_yet": "turning to find a way to the object",
-    "go_nearer": "no way there on the map yet: going as near as it allows, to look again",
     "face_goal": "at the object, turning to face it",
     "stop_at_goal": "at the object and facing it: stopping",
     "verify_approach": "driving closer to check a possible match",

@@ -36,7 +36,7 @@ base up to the first step with any re-identification score (no candidate, so no 
 exists before it).
 
 ``--event EVENT`` (repeatable) splices a change that acts only at a step with one of these events
-(going nearer when the map shows no way, ``policy.go_nearer_min_gain_m``: ``--event
+(going nearer when the map shows no way, tried and removed, docs/experiments/go-nearer.md: ``--event
 goal_not_reachable_yet --event verify_ring_not_reachable_yet --event rescan:12``; ``EVENT:N``: at least
 N steps with it): the base episodes
 without such a step are untouched, and a re-run must repeat its base up to its first
@@ -82,8 +82,8 @@ class ActsAt:
     # ... at least this many steps in it (the rescans spent: rescan, 3 x 12; docs/experiments/fresh-map.md)
     in_mode_steps: int = 1
     # where the base's steps include one of these events (the record's ``events`` count;
-    # ``EVENT:N``: at least N such steps): going nearer when the map shows no way
-    # (docs/experiments/go-nearer.md) acts only where the base had no plan to a candidate
+    # ``EVENT:N``: at least N such steps): going nearer when the map shows no way (tried and
+    # removed, docs/experiments/go-nearer.md) acted only where the base had no plan to a candidate
     # (goal_not_reachable_yet, verify_ring_not_reachable_yet) or had done a whole rescan (rescan:12)
     events: tuple[str, ...] = ()
 
@@ -291,7 +291,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=[],
         metavar="EVENT",
         help="instead: the change acts only where the base had a step with EVENT (repeatable: any of them; "
-        "EVENT:N: at least N steps with it; going nearer, policy.go_nearer_min_gain_m: goal_not_reachable_yet, "
+        "EVENT:N: at least N steps with it; going nearer when the map shows no way: goal_not_reachable_yet, "
         "verify_ring_not_reachable_yet, rescan:12)",
     )
     args = p.parse_args(argv)

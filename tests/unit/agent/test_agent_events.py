@@ -8,7 +8,7 @@ from agent.types import Action
 
 
 def test_every_event_and_context_has_a_sentence():
-    facts = {"turn": 1, "turns": 12, "choice": "new", "look": 3, "to_m": 4.2}
+    facts = {"turn": 1, "turns": 12, "choice": "new", "look": 3}
     for event in Event:
         assert sentence(event, facts, ()).strip()
     notes = {
