@@ -161,12 +161,15 @@
     }
   }
 
+  let runsSeq = 0;  // refreshes overlap (a filter changed, a run's status): only the latest may write
   async function refreshRuns() {
+    const seq = ++runsSeq;
     const q = new URLSearchParams({ limit: "50" });
     for (const [k, id] of [["outcome", "filter-outcome"], ["home", "filter-home"], ["backend", "filter-backend"]]) {
       if ($(id).value) q.set(k, $(id).value);
     }
     const data = await imgnav.getJSON(`/api/runs?${q}`);
+    if (seq !== runsSeq) return;
     setActive(data.active_run);
     const body = $("runs");
     body.replaceChildren();
@@ -208,10 +211,13 @@
     return `${what} (known from ${t.identified_by || "?"})`;
   }
 
+  let showSeq = 0;  // a run clicked while another's details load: only the latest may write
   async function showRun(runId) {
+    const seq = ++showSeq;
     selected = runId;
     for (const tr of $("runs").querySelectorAll("tr")) tr.classList.toggle("selected", tr.dataset.run === runId);
     const r = await imgnav.getJSON(`/api/runs/${runId}`);
+    if (seq !== showSeq) return;
     $("details-card").hidden = false;
     $("details-id").textContent = r.id;
     $("details-summary").replaceChildren(imgnav.summary(r));

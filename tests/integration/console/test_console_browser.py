@@ -411,3 +411,61 @@ def test_viewer_on_a_phone_screen(browser, live_console: LiveServer, tmp_path: P
         page.screenshot(path=str(ARTIFACTS / "viewer_phone.png"))
     finally:
         context.close()
+
+
+def test_a_slow_answer_for_an_earlier_click_does_not_overwrite_the_run_shown(browser, tmp_path: Path) -> None:
+    """Two finished runs; the answer for the first run's details is held back 1.5 s in the page
+    (its fetch), and the second run is clicked meanwhile: the details show the second run when
+    the first's answer lands, and stay so (an answer that is not the latest is dropped)."""
+    import httpx
+
+    from console.context import Console, ConsoleConfig
+    from tests.helpers.console_testkit import ScriptedProvider, encode, textured_rgb
+
+    server = LiveServer(
+        Console(ConsoleConfig(data_dir=tmp_path / "data", viewer=None), {"scripted": ScriptedProvider(stop_after=2)})
+    )
+    try:
+        photo = encode(textured_rgb(96, 128), "PNG")
+        ids = []
+        for _ in range(2):
+            resp = httpx.post(
+                f"{server.url}/api/runs",
+                files={"goal_image": ("g.png", photo, "image/png")},
+                data={"backend": "scripted"},
+            )
+            assert resp.status_code == 201, resp.text
+            ids.append(resp.json()["id"])
+            poll(lambda: httpx.get(f"{server.url}/api/runs/{ids[-1]}").json()["status"], lambda s: s == "finished", 60)
+        first, second = ids
+        _, b = browser
+        page = b.new_context(viewport={"width": 1280, "height": 800}).new_page()
+        errors: list[str] = []
+        page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+        page.on("requestfailed", lambda req: errors.append(req.url))
+        page.add_init_script(
+            """(() => {
+              const fetch0 = window.fetch;
+              window.fetch = async (url, opts) => {
+                const r = await fetch0(url, opts);
+                if (window.__slow && String(url).endsWith(`/api/runs/${window.__slow}`)) {
+                  await new Promise((ok) => setTimeout(ok, 1500));
+                  window.__landed = true;
+                }
+                return r;
+              };
+            })()"""
+        )
+        page.goto(server.url + "/console")
+        poll(lambda: page.text_content("#details-id") or "", lambda t: t in ids, 30, "a run's details")
+        page.evaluate("(id) => { window.__slow = id; }", first)
+        page.click(f"#runs tr[data-run='{first}']")
+        page.click(f"#runs tr[data-run='{second}']")
+        poll(lambda: page.text_content("#details-id") or "", lambda t: t == second, 10, "the second run's details")
+        page.wait_for_function("window.__landed === true", timeout=10_000)  # the first run's answer
+        page.wait_for_timeout(300)  # ... and what the page does with it
+        assert page.text_content("#details-id") == second
+        assert page.eval_on_selector("#runs tr.selected", "e => e.dataset.run") == second
+        assert not errors, errors
+    finally:
+        server.close()
