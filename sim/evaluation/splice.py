@@ -35,13 +35,13 @@ no step in that mode (the record's ``modes`` count) are untouched, and a re-run 
 base up to the first step with any re-identification score (no candidate, so no verification,
 exists before it).
 
-``--event EVENT`` (repeatable) splices a change that acts only at a step with one of these events
-(going nearer when the map shows no way, tried and removed, docs/experiments/go-nearer.md: ``--event
-goal_not_reachable_yet --event verify_ring_not_reachable_yet --event rescan:12``; ``EVENT:N``: at least
-N steps with it): the base episodes
-without such a step are untouched, and a re-run must repeat its base up to its first
-re-identification score (a candidate's events), or is only checked to be the same episode when the
-base had a search event (a rescan can come before any score).
+``--event EVENT`` (repeatable; ``EVENT:N``: at least N steps with it) splices a change that acts
+only at a step with one of these events (going nearer when the map shows no way, tried and removed,
+docs/experiments/go-nearer.md: ``--event goal_not_reachable_yet --event
+verify_ring_not_reachable_yet --event rescan:12``): the base episodes without such a step are
+untouched, and a re-run must repeat its base up to its first re-identification score (a
+candidate's events), or is only checked to be the same episode when the base had a search event
+(a rescan can come before any score).
 
 ``--list`` prints the base episodes where the change acts (the ids to re-run with
 ``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
