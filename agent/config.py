@@ -68,6 +68,24 @@ class PolicyConfig:
     unreachable_forgive: int = 1
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
+    # A fresh map when exploration runs out early with nothing worth going to: once the rescans
+    # are spent with at least ``fresh_map_min_steps_left`` steps of the budget left, and no
+    # rejected candidate scores ``fresh_map_below_tau_ratio`` x tau or more (the last resort
+    # would stop at no evidence, or the run would end exhausted), the second look is taken first
+    # and then the map's geometry (obstacles, explored area, collision marks) is forgotten and the
+    # robot looks around and explores again; candidates, rejections and where the robot has been
+    # are kept. Once a run; 0: off. With a drifting pose and noisy depth the map accumulates
+    # walls drawn a little off from every earlier pose and range, and those copies close
+    # doorways for good (the obstacle evidence clears only what is seen through from within
+    # 3 m); a map begun again from where the robot stands carries none of them. Without the
+    # score floor it came before last resorts and second looks that would have succeeded and
+    # lost on val (docs/experiments/fresh-map.md); with it, it acts only where the run would
+    # stop at no evidence (docs/experiments/fresh-map-no-evidence.md)
+    fresh_map_min_steps_left: int = 250
+    # 0.15 x tau (75.3): 11.3, about the 95th percentile of the re-ID scores of *different*
+    # objects in the agent's calibration pairs (11.7 clean, 10.7 with phone-like photos,
+    # docs/results/i30_realism/calibration_phone): a candidate scoring below it is no evidence
+    fresh_map_below_tau_ratio: float = 0.15
     # when exploration is exhausted, go to the rejected candidate with the best evidence (highest
     # re-ID score of its views) and stop there, trusted, instead of stopping where the robot
     # stands: with nothing left to explore, the best rejected guess beats any other spot

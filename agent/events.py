@@ -38,6 +38,8 @@ class Context(str, enum.Enum):
     """Why the step's event happened where it did (``AgentRecord.context``), outermost first."""
 
     SIDE_STEP = "side_step"  # a step of the side-step out of turning to and fro
+    # exploration ran out with budget left: the map was started again; facts: steps_left, dropped
+    FRESH_MAP = "fresh_map"
     SECOND_LOOK = "second_look"  # exhausted: the kept frames scored again; facts: added, kept, best
     DEADLINE = "deadline"  # the step budget is running out; facts: steps_left
     DEADLINE_OVER_WEAKER = "deadline_over_weaker"  # ... before a weaker potential candidate; facts: steps_left, score
@@ -72,6 +74,8 @@ _EVENT_TEXT: dict[Event, str] = {
 
 _CONTEXT_TEXT: dict[Context, str] = {
     Context.SIDE_STEP: "side-step out of turning to and fro; {inner}",
+    Context.FRESH_MAP: "nothing left to explore with {steps_left} steps left: map started again "
+    "({dropped} obstacle cells dropped); {inner}",
     Context.SECOND_LOOK: "exhausted, second look with the full matcher: {added} of the {kept} frames kept added "
     "points{best_text}; {inner}",
     Context.DEADLINE: "{steps_left} steps of the budget left: {inner}",

@@ -434,6 +434,18 @@ class GridMap:
         """Drop every collision mark: they are guesses (which side blocked a move is unknown)."""
         self.layers.collision[:] = False
 
+    def start_again(self) -> int:
+        """Forget what the map says about the home's geometry (obstacles and their evidence,
+        the explored area, collision marks, given-up frontiers) and keep what the robot knows
+        otherwise: where it has been (``visited``), the goal cells and the rejected candidates.
+        Returns the number of obstacle cells dropped. The policy's fresh map
+        (``PolicyConfig.fresh_map_min_steps_left``)."""
+        L = self.layers
+        dropped = int(np.count_nonzero(L.obstacle))
+        for layer in (L.obstacle, L.obstacle_evidence, L.explored, L.collision, L.frontier_blacklist):
+            layer[:] = 0
+        return dropped
+
     def forgive_frontiers(self) -> None:
         """Drop every given-up frontier (rejected goal candidates stay rejected)."""
         self.layers.frontier_blacklist[:] = False

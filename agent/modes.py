@@ -11,7 +11,9 @@ The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
           STOPPED (in the stop region, facing the candidate)
 
     EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
-       |                                                |
+       ^                                                |
+       +--LOOK_AROUND <--(rescans spent, budget left: --+  (policy.fresh_map_min_steps_left, once)
+                          the map started again)        |
        |                       (policy.last_resort, a rejected candidate left)
        |                                                v
        +--(the step budget runs out, ----------> LAST_RESORT --(in its stop region)--> STOPPED
@@ -158,6 +160,10 @@ class PolicyState:
     # them (``waiting``, by id), each once (``waited``); agent.approach.CandidateNavigator.no_way
     waiting: frozenset[int] = frozenset()
     waited: frozenset[int] = frozenset()
+    # the step at which the map was started again (``policy.fresh_map_min_steps_left``; once a
+    # run), the look-around after it counted from there; None: not started again
+    fresh_map_step: int | None = None
+    fresh_map_dropped: int = 0  # obstacle cells the fresh map dropped
 
 
 @dataclass(frozen=True, slots=True)

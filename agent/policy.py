@@ -21,6 +21,11 @@ docs/experiments/), each with its setting in ``PolicyConfig``:
   deadline (``last_resort_at_deadline``), and then before verifying a weaker potential candidate
   (``deadline_over_weaker``);
 * the side-step out of turning to and fro (``detour_after_turns``);
+* a fresh map when exploration runs out early with nothing worth going to
+  (``fresh_map_min_steps_left``, ``fresh_map_below_tau_ratio``): the rescans spent with budget
+  left and no rejected candidate scoring above what different objects score, the second look
+  is taken, then the map's geometry is forgotten (walls drawn off by a drifting pose and noisy
+  depth close doorways for good) and the robot looks around and explores again, once;
 * the second look (``exhausted_recheck_frames``): when nothing is left to explore and there is no
   candidate at all, the searching frames with the most descriptor pairs with the goal (kept in
   ``agent.shortlist``) are scored again with the full matcher and their matches localised as
@@ -399,13 +404,10 @@ class ModIINAgent:
         pc = self.config.policy
         candidates, no_way_score = self._no_way_yet(obs, candidates)
         picked = self._pick(candidates)
-        if picked is None and self._state.steps < pc.look_around_turns:
-            return Decision(
-                Action.TURN_LEFT,
-                Mode.LOOK_AROUND,
-                Event.LOOK_AROUND,
-                event_facts(turn=self._state.steps + 1, turns=pc.look_around_turns),
-            )
+        if picked is None:
+            decision = self._look_around(obs)
+            if decision is not None:
+                return decision
         if picked is not None and picked.state == CandidateState.POTENTIAL:
             decision = self._deadline_over(obs, picked)
             if decision is not None:
@@ -436,6 +438,61 @@ class ModIINAgent:
         if no_way_score is not None and decision.mode == Mode.EXPLORE:
             return decision.within(Context.NO_WAY_YET, score=no_way_score)
         return decision
+
+    def _look_around(self, obs: Observation) -> Decision | None:
+        """A turn of the look-around at the start, or after the map was started again (None: its
+        turns are done)."""
+        pc, st = self.config.policy, self._state
+        turn = st.steps - (st.fresh_map_step or 0)
+        if turn >= pc.look_around_turns:
+            return None
+        decision = Decision(
+            Action.TURN_LEFT,
+            Mode.LOOK_AROUND,
+            Event.LOOK_AROUND,
+            event_facts(turn=turn + 1, turns=pc.look_around_turns),
+        )
+        if st.fresh_map_step is None:
+            return decision
+        steps_left = pc.step_budget - obs.step + turn
+        return decision.within(Context.FRESH_MAP, steps_left=steps_left, dropped=st.fresh_map_dropped)
+
+    def _fresh_map_due(self, obs: Observation) -> bool:
+        """The rescans are spent: is the map to be started again (``policy.fresh_map_min_steps_left``)?
+        Once a run, with the steps to use it, and only when the last resort has nothing worth
+        going to: no rejected candidate left to try scores ``fresh_map_below_tau_ratio`` x tau."""
+        pc, st = self.config.policy, self._state
+        if (
+            pc.fresh_map_min_steps_left <= 0
+            or st.fresh_map_step is not None
+            or pc.step_budget - obs.step < pc.fresh_map_min_steps_left
+        ):
+            return False
+        if not pc.last_resort:
+            return True
+        lr = st.last_resort
+        cid = lr.candidate_id if lr.candidate_id is not None else self.memory.best_rejected(exclude=lr.tried)
+        floor = pc.fresh_map_below_tau_ratio * self.tau if self.tau is not None else 0.0
+        return cid is None or self.memory.best_score_of(cid) < floor
+
+    def _fresh_map(self, obs: Observation) -> Decision | None:
+        """Start the map again and look around (``_fresh_map_due``; None: no look-around turns)."""
+        pc = self.config.policy
+        dropped = self.grid.start_again()
+        self.explorer.reset()
+        self._explored_carried = False
+        self._set(
+            rescan=RescanState(rescans_left=pc.max_rescans),
+            fresh_map_step=self._state.steps,
+            fresh_map_dropped=dropped,
+        )
+        log.info(
+            "no reachable frontier after %d rescans, %d steps left: map started again (%d obstacle cells dropped)",
+            pc.max_rescans,
+            pc.step_budget - obs.step,
+            dropped,
+        )
+        return self._look_around(obs)
 
     def _deadline_over(self, obs: Observation, picked: GoalCandidate) -> Decision | None:
         """``policy.deadline_over_weaker``: the last resort at the deadline before verifying
@@ -545,6 +602,12 @@ class ModIINAgent:
                 r = replace(r, steps=steps)
             self._set(rescan=r)
             return Decision(Action.TURN_LEFT, Mode.RESCAN, Event.RESCAN, planner_error=error or "no_frontier")
+        if self._fresh_map_due(obs):
+            # nothing worth going to: the second look first (the kept frames may hold the goal),
+            # then the map begun again
+            decision = self._recheck(obs) or self._fresh_map(obs)
+            if decision is not None:
+                return decision
         if self.config.policy.last_resort:
             decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
             if decision is not None:

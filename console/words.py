@@ -187,6 +187,7 @@ EVENT_WORDS: dict[str, str] = {
 
 CONTEXT_WORDS: dict[str, str] = {
     "side_step": "stepping aside after turning to and fro",
+    "fresh_map": "nowhere left to explore: map started afresh",
     "second_look": "a second look at the views kept",
     "deadline": "few steps left",
     "deadline_over_weaker": "few steps left",

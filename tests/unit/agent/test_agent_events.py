@@ -20,6 +20,7 @@ def test_every_event_and_context_has_a_sentence():
         Context.NO_WAY_YET: dict(score=120.0),
         Context.FROM_MEMORY: dict(score=133.6),
         Context.SIDE_STEP: {},
+        Context.FRESH_MAP: dict(steps_left=640, dropped=1234),
     }
     assert set(notes) == set(Context)
     for ctx, f in notes.items():

@@ -54,6 +54,7 @@ def _rejected_then_exhausted(last_resort: bool, max_steps: int = 600, **policy):
         verify_ring_tau_ratio=1.0,
         last_resort_at_deadline=False,
         exhausted_recheck_frames=0,
+        fresh_map_min_steps_left=0,
     )
     pol.update(policy)
     agent = _scored_agent(world, decoy, lambda d: 60.0, lambda d: 0.0, **pol)
@@ -77,6 +78,27 @@ def test_last_resort_goes_back_to_the_rejected_candidate_and_stops_there():
     assert rec.event == Event.STOP_AT_GOAL.value and rec.context == (Context.LAST_RESORT.value,)
     assert rec.candidate_id == rejected[0].id and len(rec.goal_points_xyz) > 0
     assert world.distance_to_goal() < 1.0
+
+
+def test_the_fresh_map_comes_only_when_the_last_resort_has_no_evidence_to_go_to():
+    # the rejected goal scored 60 (tau 100): above the floor (0.15 x tau), so with the budget left
+    # the last resort goes to it as before, action for action
+    _, off = _rejected_then_exhausted(last_resort=True)
+    _, strong = _rejected_then_exhausted(last_resort=True, fresh_map_min_steps_left=250)
+    assert [d.action for d, _ in strong] == [d.action for d, _ in off]
+    assert not any(d.has(Context.FRESH_MAP) for d, _ in strong)
+    # the same run with the floor above 60: the rescans spent, the map is started again first;
+    # when they are spent a second time the last resort goes to the goal as before
+    world, weak = _rejected_then_exhausted(
+        last_resort=True, fresh_map_min_steps_left=250, fresh_map_below_tau_ratio=0.7
+    )
+    modes = [d.mode for d, _ in weak]
+    k = next(i for i, (d, _) in enumerate(weak) if d.has(Context.FRESH_MAP))
+    assert modes[k - 1] == Mode.RESCAN and Mode.LAST_RESORT not in modes[:k] and Mode.VERIFY in modes[:k]
+    assert Mode.RESCAN in modes[k + 4 :]
+    assert modes.index(Mode.LAST_RESORT, k) > modes.index(Mode.RESCAN, k + 4)
+    last, _ = weak[-1]
+    assert last.action == Action.STOP and last.has(Context.LAST_RESORT) and world.distance_to_goal() < 1.0
 
 
 def test_without_the_last_resort_the_same_run_stops_exhausted_where_it_stands():
@@ -140,15 +162,82 @@ def test_approach_turns_to_face_before_stopping():
     assert all(d.mode == Mode.APPROACH and d.action in (Action.TURN_LEFT, Action.TURN_RIGHT) for d in facing)
 
 
-def test_rescan_then_exhausted():
+def _closed_room(**policy):
     world = BoxWorld(room_walls(-1.0, -1.0, 1.0, 1.0) + [(5, 5, 5.5, 5.5, 0.5)], Pose2D(), goal_box=4)
-    steps = run_decisions(oracle_agent(world, look_around_turns=4, max_rescans=2), world, max_steps=100)
+    return run_decisions(oracle_agent(world, look_around_turns=4, max_rescans=2, **policy), world, max_steps=100)
+
+
+def test_rescan_then_exhausted():
+    steps = _closed_room(fresh_map_min_steps_left=0)
     modes = [d.mode for d, _ in steps]
     assert modes.count(Mode.RESCAN) == 2 * 4  # two rescans of look_around_turns turns each
     assert all(d.action == Action.TURN_LEFT and d.planner_error for d, _ in steps if d.mode == Mode.RESCAN)
     last, rec = steps[-1]
     assert last.mode == Mode.EXHAUSTED and last.action == Action.STOP and last.planner_error
     assert rec.mode == "exhausted"
+    assert not any(d.has(Context.FRESH_MAP) for d, _ in steps)
+
+
+def test_rescans_spent_with_budget_left_start_the_map_again_once():
+    # the default (fresh_map_min_steps_left 250 of the 1,000-step budget): when the rescans are
+    # spent, the map is started again and looked around in, once; the second time they are
+    # spent the run ends as before
+    steps = _closed_room()
+    modes = [d.mode for d, _ in steps]
+    first_end = modes.index(Mode.RESCAN) + 2 * 4
+    assert modes[first_end - 8 : first_end] == [Mode.RESCAN] * 8
+    fresh = steps[first_end : first_end + 4]
+    assert [d.mode for d, _ in fresh] == [Mode.LOOK_AROUND] * 4
+    assert all(d.action == Action.TURN_LEFT and d.has(Context.FRESH_MAP) for d, _ in fresh)
+    assert [dict(d.facts)["turn"] for d, _ in fresh] == [1, 2, 3, 4]
+    (note,) = fresh[0][0].context
+    assert note.facts["steps_left"] == 1000 - first_end and note.facts["dropped"] > 50  # the room's walls
+    assert fresh[0][1].reason.startswith(f"nothing left to explore with {1000 - first_end} steps left: map started")
+    # the map of that step was forgotten: none of the closed room's wall cells is left
+    assert not fresh[0][1].map.obstacle.any() and fresh[-1][1].map.obstacle.any()  # and drawn again
+    assert sum(d.has(Context.FRESH_MAP) for d, _ in steps) == 4
+    assert modes[first_end + 4 :].count(Mode.RESCAN) >= 2 * 4
+    assert steps[-1][0].mode == Mode.EXHAUSTED
+
+
+def test_a_fresh_map_needs_the_steps_to_use_it():
+    # with fewer steps left than fresh_map_min_steps_left the run ends as without it
+    off = _closed_room(fresh_map_min_steps_left=0)
+    short = _closed_room(step_budget=120, fresh_map_min_steps_left=110)
+    assert [d.action for d, _ in short] == [d.action for d, _ in off]
+
+
+def test_a_fresh_map_opens_a_door_closed_by_walls_drawn_off():
+    """two_rooms with the door closed on the map by a wall that is not there (as a wall drawn again
+    at a drifted heading leaves, and seen only from afar the obstacle evidence never clears): the
+    phantom is put back at every step until the map is started again. Without the fresh map the
+    robot ends exhausted in room A; with it, it drives through the door and stops at the goal."""
+    boxes, goal, _ = two_rooms()
+    start = Pose2D(-1.0, 1.5, -0.5)  # in room A, the goal hidden behind the wall
+    c, s = math.cos(start.yaw_rad), math.sin(start.yaw_rad)
+    door = np.array([[1.05 - start.x_m, y - start.y_m] for y in np.arange(-0.5, 0.51, 0.025)])
+    door_run = door @ np.array([[c, -s], [s, c]])  # world -> the run frame (start-relative)
+
+    def phantom(agent):
+        if agent._state.fresh_map_step is not None:
+            return
+        ij = agent.grid.xy_to_ij(door_run)
+        ok = agent.grid.in_bounds(ij)
+        agent.grid.layers.obstacle[ij[ok, 0], ij[ok, 1]] = True
+        agent.grid.layers.obstacle_evidence[ij[ok, 0], ij[ok, 1]] = 3
+
+    runs = {}
+    for on in (0, 250):
+        world = BoxWorld(boxes, start, goal)
+        agent = oracle_agent(world, look_around_turns=12, fresh_map_min_steps_left=on)
+        runs[on] = (world, run_decisions(agent, world, max_steps=600, before_step=phantom))
+    world, steps = runs[0]
+    assert steps[-1][0].mode == Mode.EXHAUSTED and world.distance_to_goal() > 1.0
+    assert not any(d.mode == Mode.APPROACH for d, _ in steps)
+    world, steps = runs[250]
+    k = next(i for i, (d, _) in enumerate(steps) if d.has(Context.FRESH_MAP))
+    assert steps[k - 1][0].mode == Mode.RESCAN and not any(d.mode == Mode.APPROACH for d, _ in steps[:k])
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
 
 
 def test_mode_names_are_the_record_strings():
@@ -229,7 +318,8 @@ def _closed_room_rescans(caplog, before_step=None):
     the marks and how many looked around as the map was."""
     world = BoxWorld(room_walls(-1.0, -1.0, 1.0, 1.0) + [(5, 5, 5.5, 5.5, 0.5)], Pose2D(), goal_box=4)
     with caplog.at_level("INFO", logger="agent.policy"):
-        steps = run_decisions(oracle_agent(world, look_around_turns=4, max_rescans=3), world, 100, before_step)
+        agent = oracle_agent(world, look_around_turns=4, max_rescans=3, fresh_map_min_steps_left=0)
+        steps = run_decisions(agent, world, 100, before_step)
     forgave = caplog.text.count("cleared collision marks and given-up frontiers")
     kept = caplog.text.count("nothing learnt since the last forgiving")
     caplog.clear()

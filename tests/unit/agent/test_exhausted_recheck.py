@@ -49,7 +49,9 @@ def test_the_shortlist_copies_the_frames_and_can_be_off():
 
 
 def run_exhausted(frames, **policy):
-    """The two-room world of the tests below: (decisions with records, world, ungated scores)."""
+    """The two-room world of the tests below: (decisions with records, world, ungated scores).
+    The fresh map is off: the second look is what these tests are about."""
+    policy.setdefault("fresh_map_min_steps_left", 0)
     boxes, goal, decoy = two_rooms()
     world = PaintedWorld(boxes, Pose2D(-1.5, -1.0, 0.3), goal, decoy=decoy)
     second_look = {"taken": False}
