@@ -103,3 +103,15 @@ def test_exhausted_with_nothing_found_the_second_look_finds_the_goal_and_stops_t
     last, rec = steps[-1]
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
     assert any(d.has(Context.RING_CONFIRMED) for d, _ in steps[i:])
+
+
+def test_with_a_fresh_map_due_the_second_look_comes_first():
+    """Exploration ends with budget left and no candidate: the fresh map is due (nothing worth going
+    to), but the kept frames are looked at again first, and here they hold the goal: the robot
+    stops at it and the map is never started again."""
+    steps, world, _ = run_exhausted(8, fresh_map_min_steps_left=250)
+    i = next(k for k, (d, _) in enumerate(steps) if d.has(Context.SECOND_LOOK))
+    assert steps[i - 1][0].mode == Mode.RESCAN
+    assert not any(d.has(Context.FRESH_MAP) for d, _ in steps)
+    last, _ = steps[-1]
+    assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
