@@ -12,8 +12,9 @@ The Mod-IIN agent (``agent.policy``) is in exactly one ``Mode`` per step:
 
     EXPLORE --(no reachable frontier)--> RESCAN --(rescans spent)--> EXHAUSTED (a STOP)
        ^                                                |
-       +--LOOK_AROUND <--(rescans spent, budget left: --+  (policy.fresh_map_min_steps_left, once)
-                          the map started again)        |
+       +--LOOK_AROUND <--(rescans spent, budget left, --+  (policy.fresh_map_min_steps_left, once;
+                          no candidate worth the last   |   after the second look)
+                          resort: the map started again)|
        |                       (policy.last_resort, a rejected candidate left)
        |                                                v
        +--(the step budget runs out, ----------> LAST_RESORT --(in its stop region)--> STOPPED
