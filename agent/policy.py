@@ -51,7 +51,6 @@ Oracle ablations are injected callables (the agent never imports sim/):
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -64,6 +63,7 @@ from agent.background import Pending
 from agent.candidates import CandidateMemory, CandidateState, GoalCandidate, evaluate
 from agent.config import AgentConfig
 from agent.events import Context, Event, event_facts
+from agent.exhausted import rescan
 from agent.frontier import FrontierExplorer, frontier_mask
 from agent.localisation import Candidate, GoalLocaliser
 from agent.mapping import GridMap
@@ -75,7 +75,7 @@ from agent.reid.base import Matcher
 from agent.reid.identifier import ReIdentifier, ReIDResult, resolve_tau
 from agent.segmentation import GoalMaskFn, GoalSegmenter
 from agent.shortlist import FrameShortlist
-from agent.types import FORWARD_STEP_M, Action, AgentRecord, Observation, Pose2D
+from agent.types import Action, AgentRecord, Observation, Pose2D
 
 log = logging.getLogger(__name__)
 
@@ -457,43 +457,6 @@ class ModIINAgent:
         steps_left = pc.step_budget - obs.step + turn
         return decision.within(Context.FRESH_MAP, steps_left=steps_left, dropped=st.fresh_map_dropped)
 
-    def _fresh_map_due(self, obs: Observation) -> bool:
-        """The rescans are spent: is the map to be started again (``policy.fresh_map_min_steps_left``)?
-        Once a run, with the steps to use it, and only when the last resort has nothing worth
-        going to: no rejected candidate left to try scores ``fresh_map_below_tau_ratio`` x tau."""
-        pc, st = self.config.policy, self._state
-        if (
-            pc.fresh_map_min_steps_left <= 0
-            or st.fresh_map_step is not None
-            or pc.step_budget - obs.step < pc.fresh_map_min_steps_left
-        ):
-            return False
-        if not pc.last_resort:
-            return True
-        lr = st.last_resort
-        cid = lr.candidate_id if lr.candidate_id is not None else self.memory.best_rejected(exclude=lr.tried)
-        floor = pc.fresh_map_below_tau_ratio * self.tau if self.tau is not None else 0.0
-        return cid is None or self.memory.best_score_of(cid) < floor
-
-    def _fresh_map(self, obs: Observation) -> Decision | None:
-        """Start the map again and look around (``_fresh_map_due``; None: no look-around turns)."""
-        pc = self.config.policy
-        dropped = self.grid.start_again()
-        self.explorer.reset()
-        self._explored_carried = False
-        self._set(
-            rescan=RescanState(rescans_left=pc.max_rescans),
-            fresh_map_step=self._state.steps,
-            fresh_map_dropped=dropped,
-        )
-        log.info(
-            "no reachable frontier after %d rescans, %d steps left: map started again (%d obstacle cells dropped)",
-            pc.max_rescans,
-            pc.step_budget - obs.step,
-            dropped,
-        )
-        return self._look_around(obs)
-
     def _deadline_over(self, obs: Observation, picked: GoalCandidate) -> Decision | None:
         """``policy.deadline_over_weaker``: the last resort at the deadline before verifying
         ``picked`` (potential), when a rejected candidate left to try has better evidence."""
@@ -547,111 +510,7 @@ class ModIINAgent:
                 target_kind="frontier",
                 planner_error=error,
             )
-        return self._rescan(obs, error)
-
-    def _rescan(self, obs: Observation, error: str | None) -> Decision:
-        # No reachable frontier. Collision marks are guesses (the blocked side of a move is
-        # unknown) and a frontier given up as reached or stalled may still lead somewhere (a
-        # doorway passed at an angle): forgive both and look around again before giving up.
-        #
-        # Forgiving again teaches nothing when nothing was learnt since the last forgiving: the
-        # robot stands where it stood then and no forward move failed that had not failed before.
-        # The same frontier comes back through the same move the motion memory refuses;
-        # exploration takes over after one turn, the rescan is never counted, and the robot turns
-        # there until its budget ends (actuation noise alone, train-s1-0008-0: 700 steps;
-        # docs/experiments/rescan-nothing-learnt.md). Then the rescan looks around as the map is,
-        # and is counted when its turns are done unless new frontiers come into view. A robot that
-        # moved half a step or more, or found a new way blocked, forgives again: that is how a
-        # robot with noisy moves squeezes through a gap it clipped (each failed move is new once,
-        # so this is bounded).
-        if self._state.waiting:
-            # no frontier left to find a way by: the waiting candidates are approached once more
-            # (and rejected if still unreachable: each waits once)
-            log.info("no reachable frontier: the candidates waiting for a way are tried again")
-            self._set(waiting=frozenset())
-        r = self._state.rescan
-        if r.rescans_left > 0:
-            if r.steps == 0:
-                here = (obs.pose.x_m, obs.pose.y_m)
-                failed = len(self._state.motion.blocked)
-                self.explorer.reset()
-                if (
-                    r.forgiven_at is None
-                    or math.dist(here, r.forgiven_at) >= FORWARD_STEP_M / 2
-                    or failed > r.forgiven_failed_moves
-                ):
-                    self.grid.forgive_collisions()
-                    self.grid.forgive_frontiers()
-                    r = replace(r, forgiven_at=here, forgiven_failed_moves=failed)
-                    log.info(
-                        "no reachable frontier: cleared collision marks and given-up frontiers, looking around again"
-                    )
-                else:
-                    log.info(
-                        "no reachable frontier, nothing learnt since the last forgiving: looking around again as it is"
-                    )
-                if self._explored_carried:
-                    # what earlier goals looked over was not looked over for this one (agent.memory)
-                    self.grid.layers.explored[:] = False
-                    self._explored_carried = False
-                    log.info("no reachable frontier: forgot the explored area carried from earlier goals")
-            steps = r.steps + 1
-            if steps >= self.config.policy.look_around_turns or steps >= 12:
-                r = replace(r, steps=0, rescans_left=r.rescans_left - 1)
-            else:
-                r = replace(r, steps=steps)
-            self._set(rescan=r)
-            return Decision(Action.TURN_LEFT, Mode.RESCAN, Event.RESCAN, planner_error=error or "no_frontier")
-        if self._fresh_map_due(obs):
-            # nothing worth going to: the second look first (the kept frames may hold the goal),
-            # then the map begun again
-            decision = self._recheck(obs) or self._fresh_map(obs)
-            if decision is not None:
-                return decision
-        if self.config.policy.last_resort:
-            decision, self._state = self.nav.last_resort(self._scene(obs), self._state)
-            if decision is not None:
-                return decision
-        decision = self._recheck(obs)
-        if decision is not None:
-            return decision
-        # Nothing left to explore and no goal: a deliberate stop, reported as such.
-        return Decision(Action.STOP, Mode.EXHAUSTED, Event.EXHAUSTED, planner_error=error or "no_frontier")
-
-    def _recheck(self, obs: Observation) -> Decision | None:
-        """The second look when exhausted (``policy.exhausted_recheck_frames``): score the kept
-        frames again with the full matcher, localise their matches whatever the score, and decide
-        on the candidates they form (None: no candidate came of it, or already done)."""
-        pc = self.config.policy
-        if (
-            self._state.rechecked
-            or len(self.shortlist) == 0
-            or self.reid is None
-            or pc.reid_source != "matcher"
-            or pc.localisation_source != "goal_mask"
-        ):
-            return None
-        self._set(rechecked=True)
-        frames = self.shortlist.take()
-        scored = [
-            (kept, self.reid.compare(kept.rgb, use_gate=False))
-            for _, kept in frames
-            if self.localiser.view(kept.step) is None
-        ]
-        scores = [r.score for kept, r in scored if r.score > 0 and len(self._localise(kept, r, r.score))]
-        best = max(scores) if scores else None
-        log.info(
-            "exploration exhausted with no candidate: second look, %d of the %d frames kept added points",
-            len(scores),
-            len(frames),
-        )
-        cands = self._evaluate(self.localiser.candidates(self.grid, self.tau)) if scores else []
-        if not cands:
-            return None
-        decision = self._decide(obs, cands)
-        if decision.mode == Mode.EXHAUSTED:
-            return None
-        return decision.within(Context.SECOND_LOOK, added=len(scores), kept=len(frames), best=best)
+        return rescan(self, obs, error)
 
 
 def _ms(t0: float) -> float:
