@@ -121,6 +121,11 @@ class CandidateMemory:
             return None
         return max(pool, key=lambda r: (r.best_score, r.n_views, -r.id)).id
 
+    def last_resort_next(self, current: int | None, tried: frozenset[int]) -> int | None:
+        """The rejected candidate the last resort goes to next: the one under way (``current``),
+        else the best not yet ``tried``; None when none is left."""
+        return current if current is not None else self.best_rejected(exclude=tried)
+
     def best_score_of(self, cand_id: int) -> float:
         return self._rejected[cand_id].best_score
 

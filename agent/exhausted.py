@@ -143,7 +143,7 @@ def fresh_map_due(agent: ModIINAgent, obs: Observation) -> bool:
     if not pc.last_resort:
         return True
     lr = st.last_resort
-    cid = lr.candidate_id if lr.candidate_id is not None else agent.memory.best_rejected(exclude=lr.tried)
+    cid = agent.memory.last_resort_next(lr.candidate_id, lr.tried)
     floor = pc.fresh_map_below_tau_ratio * agent.tau if agent.tau is not None else 0.0
     return cid is None or agent.memory.best_score_of(cid) < floor
 

@@ -464,7 +464,7 @@ class ModIINAgent:
         if not pc.deadline_over_weaker:
             return None
         lr = self._state.last_resort
-        cid = lr.candidate_id if lr.candidate_id is not None else self.memory.best_rejected(exclude=lr.tried)
+        cid = self.memory.last_resort_next(lr.candidate_id, lr.tried)
         if cid is None or self.memory.best_score_of(cid) <= picked.best_score:
             return None
         due, self._state = self.nav.deadline_due(self._scene(obs), self._state)
