@@ -45,6 +45,9 @@ class PolicyConfig:
     stop_rule: Literal["radius", "core"] = "core"
     stop_radius_m: float = 0.6  # success is decided at 1.0 m; the paper stopped at 0.8 m of the nearest cell
     stop_core_quantile: float = 0.7
+    # ... of them, only those on the one obstacle of the map that holds most of the core's
+    # points: the goal mask leaks onto what stands before the object (agent/stop_region.py)
+    stop_one_object: bool = True
     facing_tolerance_deg: float = 16.0  # ... and the goal is within this of the heading
     # when the stop region is unreachable, the nearest cells up to this much farther will do
     stop_radius_slack_m: float = 0.25

@@ -100,3 +100,58 @@ def test_candidates_remember_where_each_view_was_taken():
     (cl,) = loc.candidates(GridMap())
     assert cl.frames == (3, 7) and cl.seen_from_xy_m == ((2.0, 0.0), (0.0, 2.0))
     assert loc.view(7).robot_xy_m == (0.0, 2.0)
+
+
+def _couch_behind_a_low_table():
+    """A couch at x 2.0-2.6, y -1.1..1.1 and a low table before it at x 1.45-1.7, y -0.5..0.5,
+    30 cm of free floor between them, both on the map. The goal mask leaked onto the table: 500
+    points on the couch, 60 on the table (as in val-s0-0066 under the stretch profile)."""
+    grid = GridMap()
+    rng = np.random.default_rng(3)
+    couch = np.column_stack([rng.uniform(2.0, 2.6, 500), rng.uniform(-1.1, 1.1, 500), rng.uniform(0.4, 0.9, 500)])
+    table = np.column_stack([rng.uniform(1.45, 1.7, 60), rng.uniform(-0.5, 0.5, 60), rng.uniform(0.3, 0.45, 60)])
+    cand = _candidate(grid, np.vstack([couch, table]))
+    for x0, x1, y0, y1 in ((2.0, 2.6, -1.1, 1.1), (1.45, 1.7, -0.5, 0.5)):
+        i0, j0 = grid.xy_to_ij(np.array([[x0, y0]]))[0]
+        i1, j1 = grid.xy_to_ij(np.array([[x1, y1]]))[0]
+        grid.layers.obstacle[min(i0, i1) : max(i0, i1) + 1, min(j0, j1) : max(j0, j1) + 1] = True
+    return grid, cand
+
+
+def test_the_core_keeps_the_object_and_drops_the_table_the_mask_leaked_onto():
+    grid, cand = _couch_behind_a_low_table()
+    core = grid.ij_to_xy(core_cells(grid, cand, 0.7))
+    assert (core[:, 0] < 1.8).sum() >= 10  # the 70% nearest the median take the table's cells too
+    one = grid.ij_to_xy(core_cells(grid, cand, 0.7, one_object=True))
+    assert len(one) > 0.8 * (core[:, 0] >= 1.95).sum() and one[:, 0].min() >= 1.95  # the couch only
+    # a stop 0.6 m from the core can lie 1.0+ m from the couch; from the one object it cannot
+    mask = np.zeros(grid.shape, bool)
+    cc = core_cells(grid, cand, 0.7)
+    mask[cc[:, 0], cc[:, 1]] = True
+    free = ~grid.layers.obstacle
+    reach = grid.ij_to_xy(np.argwhere(region_within(mask, 0.6, grid.resolution_m) & free))
+    assert reach[:, 0].min() < 1.0 and len(one) < len(core)
+    mask[:] = False
+    cc = core_cells(grid, cand, 0.7, one_object=True)
+    mask[cc[:, 0], cc[:, 1]] = True
+    reach = grid.ij_to_xy(np.argwhere(region_within(mask, 0.6, grid.resolution_m) & free))
+    assert reach[:, 0].min() > 1.3
+
+
+def test_the_core_is_kept_whole_where_the_map_joins_it_or_shows_no_obstacle():
+    grid, cand = _couch_behind_a_low_table()
+    whole = core_cells(grid, cand, 0.7)
+    # the table touches the couch on the map: one obstacle, nothing dropped
+    i0, j0 = grid.xy_to_ij(np.array([[1.6, -0.2]]))[0]
+    i1, j1 = grid.xy_to_ij(np.array([[2.1, 0.2]]))[0]
+    grid.layers.obstacle[min(i0, i1) : max(i0, i1) + 1, min(j0, j1) : max(j0, j1) + 1] = True
+    assert len(core_cells(grid, cand, 0.7, one_object=True)) == len(whole)
+    # nothing on the map yet: nothing dropped
+    grid.layers.obstacle[:] = False
+    assert len(core_cells(grid, cand, 0.7, one_object=True)) == len(whole)
+    # cells on no obstacle are kept beside the object's: the couch mapped, the table not
+    grid, cand = _couch_behind_a_low_table()
+    i0, j0 = grid.xy_to_ij(np.array([[1.4, -0.55]]))[0]
+    i1, j1 = grid.xy_to_ij(np.array([[1.75, 0.55]]))[0]
+    grid.layers.obstacle[min(i0, i1) : max(i0, i1) + 1, min(j0, j1) : max(j0, j1) + 1] = False
+    assert len(core_cells(grid, cand, 0.7, one_object=True)) == len(whole)
