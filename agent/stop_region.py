@@ -8,7 +8,7 @@ success is decided within 1.0 m of the object and seeing it.
 * the line of sight on the map from a stop cell to the core;
 * one object on the map: the core's cells on an obstacle of the map other than the one that
   holds most of its points are dropped. The goal mask leaks onto what stands before the
-  object (a low table in front of a couch): those points are on another obstacle, separated
+  object (furniture in front of a couch): those points are on another obstacle, separated
   from the object by free floor, and a stop measured from them ends short of the object
   (two val homes under the ``stretch`` profile stopped 1.02 and 1.12 m from the object:
   docs/experiments/stop-one-object.md);

@@ -105,7 +105,7 @@ def test_candidates_remember_where_each_view_was_taken():
 def _couch_behind_a_low_table():
     """A couch at x 2.0-2.6, y -1.1..1.1 and a low table before it at x 1.45-1.7, y -0.5..0.5,
     30 cm of free floor between them, both on the map. The goal mask leaked onto the table: 500
-    points on the couch, 60 on the table (as in val-s0-0066 under the stretch profile)."""
+    points on the couch, 60 on the table (the shape of val-s0-0066 under the stretch profile)."""
     grid = GridMap()
     rng = np.random.default_rng(3)
     couch = np.column_stack([rng.uniform(2.0, 2.6, 500), rng.uniform(-1.1, 1.1, 500), rng.uniform(0.4, 0.9, 500)])
