@@ -69,6 +69,10 @@ class PolicyConfig:
     # before that, drop the collision marks and count again, this many times per candidate (0: off):
     # failed moves near an object leave bands that can wall in its stop region
     unreachable_forgive: int = 1
+    # ... and when a way to it that the robot already had grows by more than this (a failed move
+    # in a doorway: its band closes the door and the plan goes round the home), drop them if that
+    # gives back a way at least this much shorter; counted with ``unreachable_forgive`` (0: off)
+    detour_forgive_m: float = 2.0
     approach_patience_steps: int = 100  # steps without getting nearer to a candidate before it is dropped
     max_rescans: int = 3  # look-arounds (forgiving given-up frontiers) before stopping as "exhausted"
     # A fresh map when exploration runs out early with nothing worth going to: once the rescans

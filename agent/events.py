@@ -49,6 +49,8 @@ class Context(str, enum.Enum):
     # the candidate rests on remembered views only (the memory of the home), none of this goal's own
     # frames added to it; facts: score (its best, a remembered view's)
     FROM_MEMORY = "from_memory"
+    # collision marks dropped: they had made the way to the candidate a detour; facts: was_m, now_m
+    MARKS_DROPPED = "marks_dropped"
 
 
 # The order in which contexts enclose each other (outermost first): the second look decides
@@ -87,6 +89,8 @@ _CONTEXT_TEXT: dict[Context, str] = {
     "{inner}",
     Context.FROM_MEMORY: "goal candidate from the memory of the home only (best score {score:.1f}), not seen live "
     "in this run: {inner}",
+    Context.MARKS_DROPPED: "collision marks dropped: they made the way {was_m:.1f} m, without them {now_m:.1f} m; "
+    "{inner}",
 }
 
 

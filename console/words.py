@@ -195,6 +195,7 @@ CONTEXT_WORDS: dict[str, str] = {
     "ring_confirmed": "recognised from nearby",
     "no_way_yet": "no way to the object yet, looking for one",
     "from_memory": "known from memory only, not seen again in this run",
+    "marks_dropped": "trying again where a move failed: the way round is much longer",
 }
 
 

@@ -339,6 +339,7 @@ class Attribution:
         self.candidate_on_goal_steps = 0  # steps whose current candidate lay on the goal
         self.modes: Counter[str] = Counter()
         self.events: Counter[str] = Counter()  # steps per event (agent.events.Event values)
+        self.contexts: Counter[str] = Counter()  # steps per context (agent.events.Context values)
         self.last: AgentRecord | None = None
         self.timings: dict[str, list[float]] = {}
         self.trace_score: list[float | None] = []  # per step: re-ID score and goal pixels in view,
@@ -380,6 +381,7 @@ class Attribution:
         self.modes[record.mode] += 1
         if record.event:
             self.events[record.event] += 1
+        self.contexts.update(record.context)
         if self.second_look_step is None and Context.SECOND_LOOK.value in record.context:
             self.second_look_step = obs.step
         if record.planner_error:
@@ -488,6 +490,7 @@ class Attribution:
                 "planner_errors": self.planner_errors,
                 "modes": dict(self.modes),
                 "events": dict(self.events),
+                "contexts": dict(self.contexts),
                 "median_ms": {k: round(float(np.median(v)), 2) for k, v in self.timings.items()},
                 "full_matcher_steps": self.full_matcher_steps,
                 "gated_goal_in_view_steps": self.gated_goal_in_view,

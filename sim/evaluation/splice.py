@@ -43,6 +43,13 @@ untouched, and a re-run must repeat its base up to its first re-identification s
 candidate's events), or is only checked to be the same episode when the base had a search event
 (a rescan can come before any score).
 
+``--collided`` (with ``--event``) narrows it to the base episodes that also had a forward move
+that did not move the robot (the agent's own collision test, on its estimated pose): a change that
+acts only while a collision mark is on the map (dropping the marks that made the way to a
+candidate a detour, ``policy.detour_forgive_m``: ``--event approach --event verify_approach
+--collided``); a re-run must repeat its base up to the later of its first re-identification score
+and its first failed move.
+
 ``--list`` prints the base episodes where the change acts (the ids to re-run with
 ``imgnav eval --episode-ids``) instead of splicing: ``splice BASE --list --oscillation 4``.
 """
@@ -86,6 +93,8 @@ class ActsAt:
     # removed, docs/experiments/go-nearer.md) acted only where the base had no plan to a candidate
     # (goal_not_reachable_yet, verify_ring_not_reachable_yet) or had done a whole rescan (rescan:12)
     events: tuple[str, ...] = ()
+    # ... and only after a forward move that did not move the robot (a collision mark is on the map)
+    collided: bool = False
 
     def untouched(self, rec: dict[str, Any]) -> int | None:
         """How many of the base's leading actions the change cannot alter (None: it never acts)."""
@@ -106,7 +115,11 @@ class ActsAt:
             if not had:
                 return None
             # a candidate's events come after a score; a search event (a rescan) may come first
-            return 0 if any(e in SEARCH_EVENTS for e in had) else first_score_step(rec)
+            n = 0 if any(e in SEARCH_EVENTS for e in had) else first_score_step(rec)
+            if self.collided:
+                k = first_failed_move(rec)
+                return None if k is None else max(n, k + 1)
+            return n
         if (rec.get("modiin") or {}).get("final_mode") != self.ended_in:
             return None
         return max(len(actions) - 1, 0)
@@ -123,7 +136,8 @@ class ActsAt:
                 return f"the base spent fewer than {self.in_mode_steps} steps in mode {self.in_mode!r}"
             return f"the base spent no step in mode {self.in_mode!r}"
         if self.events:
-            return f"the base had no step with event {' or '.join(self.events)}"
+            also = " after a failed forward move" if self.collided else ""
+            return f"the base had no step with event {' or '.join(self.events)}{also}"
         return f"the base ended in {(rec.get('modiin') or {}).get('final_mode')!r}, not {self.ended_in!r}"
 
 
@@ -143,6 +157,23 @@ def first_score_step(rec: dict[str, Any]) -> int:
     no goal candidate, so no rejection, can exist before it. 0 when the trace is missing."""
     scores = ((rec.get("modiin") or {}).get("trace") or {}).get("reid_score") or []
     return next((k for k, v in enumerate(scores) if v and v > 0), 0)
+
+
+def first_failed_move(rec: dict[str, Any]) -> int | None:
+    """Index of the base's first forward move after which its estimated pose (the agent's own
+    collision test, ``policy.collision_min_motion_m``; the true pose when no estimate is recorded)
+    had moved less than 5 cm, or None."""
+    from agent.types import Action
+
+    t = rec.get("trajectory") or {}
+    poses = t.get("poses_estimate_world") or t.get("poses_world") or []
+    for k, a in enumerate(t.get("actions") or []):
+        act = Action[a] if isinstance(a, str) else Action(int(a))
+        if act == Action.MOVE_FORWARD and k + 1 < len(poses):
+            (x0, y0, *_), (x1, y1, *_) = poses[k], poses[k + 1]
+            if ((x1 - x0) ** 2 + (y1 - y0) ** 2) ** 0.5 < 0.05:
+                return k
+    return None
 
 
 def _turn(a: Any) -> int:
@@ -294,9 +325,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         "EVENT:N: at least N steps with it; going nearer when the map shows no way: goal_not_reachable_yet, "
         "verify_ring_not_reachable_yet, rescan:12)",
     )
+    p.add_argument(
+        "--collided",
+        action="store_true",
+        help="with --event: only where the base also had a forward move that did not move the robot "
+        "(dropping collision marks that made a detour, policy.detour_forgive_m: --event approach "
+        "--event verify_approach --collided)",
+    )
     args = p.parse_args(argv)
+    if args.collided and not args.event:
+        p.error("--collided goes with --event")
     if args.event:
-        acts_at = ActsAt(events=tuple(args.event))
+        acts_at = ActsAt(events=tuple(args.event), collided=args.collided)
     elif args.from_step is not None:
         acts_at = ActsAt(from_step=args.from_step)
     elif args.rejected:

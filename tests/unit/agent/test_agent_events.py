@@ -21,6 +21,7 @@ def test_every_event_and_context_has_a_sentence():
         Context.FROM_MEMORY: dict(score=133.6),
         Context.SIDE_STEP: {},
         Context.FRESH_MAP: dict(steps_left=640, dropped=1234),
+        Context.MARKS_DROPPED: dict(was_m=7.2, now_m=1.8),
     }
     assert set(notes) == set(Context)
     for ctx, f in notes.items():

@@ -358,7 +358,10 @@ def test_the_side_step_gets_out_of_turning_to_and_fro():
 
     forgiven: list[bool] = []
     world = _kerb_world()
-    steps = run_decisions(oracle_agent(world, detour_after_turns=0), world, 300, forgive_the_first_failure)
+    # (the collision marks are kept otherwise: policy.detour_forgive_m would drop them, its own test below)
+    steps = run_decisions(
+        oracle_agent(world, detour_after_turns=0, detour_forgive_m=0.0), world, 300, forgive_the_first_failure
+    )
     assert forgiven and _longest_to_and_fro(steps) >= 15
     assert not any(d.has(Context.SIDE_STEP) for d, _ in steps)
     # With it (policy.detour_after_turns: 4, the default): after the 4th turn to and fro the agent
@@ -366,7 +369,7 @@ def test_the_side_step_gets_out_of_turning_to_and_fro():
     # says so. (The goal room stays out of reach: the kerb spans the door.)
     forgiven = []
     world = _kerb_world()
-    steps = run_decisions(oracle_agent(world), world, 300, forgive_the_first_failure)
+    steps = run_decisions(oracle_agent(world, detour_forgive_m=0.0), world, 300, forgive_the_first_failure)
     side = [k for k, (d, r) in enumerate(steps) if d.has(Context.SIDE_STEP) and r.context[:1] == ("side_step",)]
     assert forgiven and len(side) >= 2
     # each side-step is turns (all the same way) and then one forward move
@@ -550,3 +553,88 @@ def test_a_decoy_that_scores_low_from_the_verify_ring_is_still_rejected():
         c.state == "rejected" and c.why == "not re-identified in 8 looks from the verify ring" for c in rec.candidates
     )
     assert last.mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+
+
+def _two_doors():
+    """Room A (x -2..2.5) and room B (x 2.6..6), y -4..4, joined by a door at y in [-0.45, 0.45]
+    and another at y in [3.0, 3.9]; the goal (a 0.6 m cube) in room B, seen through the near door
+    from the start. The way through the near door is about 4 m, round by the far one over 7 m.
+    ``low_kerb``: a kerb across the near door that the camera's map does not show (too low) but
+    that stops the robot. Returns (world, the near door's x)."""
+    walls = room_walls(-2.0, -4.0, 6.0, 4.0)
+    walls += [(2.5, -4.0, 2.6, -0.45, 2.5), (2.5, 0.45, 2.6, 3.0, 2.5), (2.5, 3.9, 2.6, 4.0, 2.5)]
+    goal = (4.5, -0.3, 5.1, 0.3, 0.6)
+    return walls + [goal], len(walls)
+
+
+def _through_a_marked_door(again: bool = False, kerb: bool = False, **policy):
+    """A run in _two_doors where, after two steps of the approach, a failed move's collision marks
+    close the near door (the marks are guesses: the door is open), put back whenever they were
+    dropped when ``again``; ``kerb``: the door is closed for real by a kerb below the map's
+    obstacle height, so the robot's own failed moves mark it. Returns (world, steps, crossings):
+    where the true path crossed the wall between the rooms (the y of each crossing)."""
+    boxes, goal = _two_doors()
+    if kerb:
+        boxes = boxes + [(2.45, -0.45, 2.65, 0.45, 0.02)]  # BoxWorld stops the robot; too low to map
+    world = BoxWorld(boxes, Pose2D(0.0, 0.0, 0.0), goal)
+    agent = oracle_agent(world, **policy)
+    approach_steps = []
+
+    def marks(agent) -> None:
+        d = agent.last_decision
+        if d is not None and d.mode == Mode.APPROACH:
+            approach_steps.append(d)
+        if kerb or len(approach_steps) < 2:
+            return
+        if len(approach_steps) == 2 or (again and not agent.grid.layers.collision.any()):
+            r = agent.config.mapping.robot_radius_m
+            for y in (-0.4, -0.2, 0.0, 0.2, 0.4):
+                agent.grid.mark_collision(Pose2D(2.5 - r - 0.02, y, 0.0))
+
+    path = []
+
+    def track(agent) -> None:
+        path.append(world.pose)
+        marks(agent)
+
+    steps = run_decisions(agent, world, max_steps=400, before_step=track)
+    path.append(world.pose)
+    crossings = [0.5 * (p.y_m + q.y_m) for p, q in zip(path, path[1:]) if (p.x_m < 2.55) != (q.x_m < 2.55)]
+    return world, steps, crossings
+
+
+def test_collision_marks_that_make_the_way_a_detour_are_dropped():
+    # Off: the marks close the near door and the robot goes round by the far one
+    world, steps, crossings = _through_a_marked_door(detour_forgive_m=0.0)
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert crossings and all(3.0 < y < 3.9 for y in crossings)
+    assert not any(d.has(Context.MARKS_DROPPED) for d, _ in steps)
+    detour = len(steps)
+    # policy.detour_forgive_m: 2.0 (the default): the way grew by more than 2 m, the marks are
+    # dropped (once), the robot goes through the near door, saying why
+    world, steps, crossings = _through_a_marked_door()
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert crossings and all(abs(y) < 0.45 for y in crossings)
+    dropped = [(d, rec) for d, rec in steps if d.has(Context.MARKS_DROPPED)]
+    assert len(dropped) == 1
+    (note,) = [n for n in dropped[0][0].context if n.context == Context.MARKS_DROPPED]
+    assert note.facts["was_m"] > note.facts["now_m"] + 2.0 and note.facts["now_m"] < 4.0
+    assert dropped[0][1].reason.startswith("collision marks dropped: they made the way")
+    assert len(steps) < detour - 8
+
+
+def test_marks_are_dropped_once_per_candidate():
+    # the marks come back after the drop: the robot then goes round by the far door
+    world, steps, crossings = _through_a_marked_door(again=True)
+    assert sum(d.has(Context.MARKS_DROPPED) for d, _ in steps) == 1
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert crossings and all(3.0 < y < 3.9 for y in crossings)
+
+
+def test_a_door_really_closed_is_tried_once_then_gone_round():
+    # a kerb the map does not show: the robot's own failed moves mark the door; the marks are
+    # dropped once, the door fails again, and the robot goes round by the far door
+    world, steps, crossings = _through_a_marked_door(kerb=True)
+    assert sum(d.has(Context.MARKS_DROPPED) for d, _ in steps) == 1
+    assert steps[-1][0].mode == Mode.STOPPED and world.distance_to_goal() < 1.0
+    assert crossings and all(3.0 < y < 3.9 for y in crossings)

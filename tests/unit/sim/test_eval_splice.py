@@ -239,3 +239,38 @@ def test_a_change_at_one_event_splices_only_where_the_base_had_a_step_with_it(tm
     assert capsys.readouterr().out.split() == ["w", "r"]
     assert main(argv) == 0
     assert capsys.readouterr().out.split() == ["w"]
+
+
+def test_a_change_after_a_failed_move_splices_only_where_the_base_had_one(tmp_path, capsys):
+    from sim.evaluation.splice import ActsAt
+
+    # "b": its third action, a forward move, did not move the robot (estimate and truth); "c"
+    # moved on every forward move; both approached a candidate first scored at step 1
+    bumped = rec("b", [L, F, F, F, S], "stopped", success=True)
+    poses = bumped["trajectory"]["poses_world"]
+    poses[3:] = [[0.25, 0.0, 0.0], [0.25, 0.0, 0.0], [0.5, 0.0, 0.0]]
+    bumped["trajectory"]["poses_estimate_world"] = [[x + 0.01, y, t] for x, y, t in poses]
+    clear = rec("c", [L, F, F, S], "stopped", success=True, home=2)
+    for r in (bumped, clear):
+        r["modiin"].update(
+            events={"approach": 3, "stop_at_goal": 1}, trace={"reid_score": [0.0, 50.0, 60.0, 70.0, 0.0]}
+        )
+    at = ActsAt(events=("approach", "verify_approach"), collided=True)
+    # it cannot act before the step after the failed move (index 2)
+    assert [at.untouched(r) for r in (bumped, clear)] == [3, None]
+    assert ActsAt(events=("approach",)).untouched(clear) == 1
+    assert "after a failed forward move" in at.why_not(clear)
+    again = json.loads(json.dumps(bumped))
+    again["trajectory"]["actions"][3] = L
+    again["trajectory"]["poses_world"][4] = [0.25, 0.0, 0.5]
+    out = splice([bumped, clear], [again], at)
+    assert out[1] is clear and out[0]["trajectory"]["actions"][3] == L
+    again["trajectory"]["actions"][2] = L  # differs before the failed move: not this change
+    with pytest.raises(ValueError, match="actions differ at step 2"):
+        splice([bumped, clear], [again], at)
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in (bumped, clear)))
+    assert main([str(tmp_path / "base"), "--list", "--event", "approach", "--collided"]) == 0
+    assert capsys.readouterr().out.split() == ["b"]
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "base"), "--list", "--collided"])

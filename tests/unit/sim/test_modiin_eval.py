@@ -68,7 +68,7 @@ def attribution(steps):
     a.first_seen = a.first_detection = a.last = None
     from collections import Counter
 
-    a.modes, a.events, a.timings = Counter(), Counter(), {}
+    a.modes, a.events, a.contexts, a.timings = Counter(), Counter(), Counter(), {}
     a.trace_score, a.trace_goal_px, a.trace_gate, a.trace_exit, a.trace_goal_dist = [], [], [], [], []
     a.full_matcher_steps = a.gated_goal_in_view = 0
     a.second_look_step = None
@@ -183,6 +183,7 @@ def test_attribution_records_the_step_of_the_second_look():
     assert out["second_look_step"] == 3 and out["final_event"] == "verify_approach"
     assert out["events"] == {"frontier": 3, "verify_approach": 2}  # steps per event
     assert out["final_context"] == ["side_step", "second_look"]
+    assert out["contexts"] == {"side_step": 2, "second_look": 2}  # steps per context
 
 
 def test_attribution_measures_the_pose_error_and_phantom_obstacles():
